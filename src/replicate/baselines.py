@@ -1,0 +1,94 @@
+"""Baselines and references (SPEC §7), as policies of the same environment: ``policy(env) → actions [E, N, 2]``.
+
+* random actions;
+* naive swarming (after Zoss et al. 2018): attraction toward the region's interior plus avoidance of agents
+  closer than a range, hand-set gains;
+* Lloyd / centroidal Voronoi (Cortés et al. 2004): each agent steers toward the centroid of its Voronoi cell
+  clipped to the region; its converged layout is the practical optimum of the coverage metric.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import shapely
+from shapely.geometry import MultiPoint, Polygon
+
+from .config import LloydConfig, NaiveConfig
+from .env import CoverageEnv
+
+Policy = Callable[[CoverageEnv], np.ndarray]
+
+
+def nearest_in(polygon: Polygon, xy: np.ndarray) -> np.ndarray:
+    """The point of ``polygon`` nearest each point (the point itself when inside). [M, 2] → [M, 2]."""
+    lines = shapely.shortest_line(shapely.points(xy), polygon)
+    return shapely.get_coordinates(lines).reshape(-1, 2, 2)[:, 1]
+
+
+def random_policy(rng: np.random.Generator) -> Policy:
+    """Uniform random actions in [-1, 1]² from ``rng``."""
+
+    def policy(env: CoverageEnv) -> np.ndarray:
+        return rng.uniform(-1.0, 1.0, size=(env.n_envs, env.n_agents, 2))
+
+    return policy
+
+
+def naive_swarming(cfg: NaiveConfig) -> Policy:
+    """Attraction toward the interior (the points where the coverage polygon fits, Reg ⊖ Cov) for agents
+    outside it, plus linear repulsion from every agent closer than ``avoid_range``, minus a velocity damping."""
+
+    def policy(env: CoverageEnv) -> np.ndarray:
+        pos, vel = env.pos, env.vel
+        target_region = env.geometry.eroded if not env.geometry.eroded.is_empty else env.region.polygon
+        flat = pos.reshape(-1, 2)
+        outside = ~shapely.contains_xy(target_region, flat[:, 0], flat[:, 1])
+        attract = np.zeros_like(flat)
+        if outside.any():
+            delta = nearest_in(target_region, flat[outside]) - flat[outside]
+            dist = np.linalg.norm(delta, axis=1, keepdims=True)
+            attract[outside] = cfg.attraction * delta / np.maximum(dist, 0.2)
+        diff = pos[:, :, None, :] - pos[:, None, :, :]  # [E, N, N, 2]: p_i − p_j
+        d = np.linalg.norm(diff, axis=-1)
+        weight = np.where((d > 0) & (d < cfg.avoid_range), 1.0 - d / cfg.avoid_range, 0.0)
+        unit = diff / np.maximum(d, 1e-9)[..., None]
+        avoid = cfg.avoidance * (weight[..., None] * unit).sum(axis=2)
+        action = attract.reshape(pos.shape) + avoid - cfg.damping * vel
+        return np.clip(action, -1.0, 1.0)
+
+    return policy
+
+
+def voronoi_centroids(region: Polygon, xy: np.ndarray) -> np.ndarray:
+    """Centroid of each agent's Voronoi cell clipped to the region (nearest region point if the cell misses
+    it). xy [N, 2] → [N, 2]."""
+    n = len(xy)
+    if n == 1:
+        cells = np.array([region])
+    else:
+        minx, miny, maxx, maxy = region.bounds
+        pad = max(maxx - minx, maxy - miny) + np.abs(xy).max()
+        frame = shapely.box(minx - pad, miny - pad, maxx + pad, maxy + pad)
+        cells = shapely.get_parts(shapely.voronoi_polygons(MultiPoint(xy), extend_to=frame, ordered=True))
+    if len(cells) != n:  # coincident agents: no proper diagram, head for the region's nearest point
+        return nearest_in(region, xy)
+    clipped = shapely.intersection(cells, region)
+    target = shapely.get_coordinates(shapely.centroid(clipped), include_z=False)
+    empty = shapely.is_empty(clipped)
+    out = np.empty((n, 2))
+    out[~empty] = target if len(target) == (~empty).sum() else nearest_in(region, xy[~empty])
+    if empty.any():
+        out[empty] = nearest_in(region, xy[empty])
+    return out
+
+
+def lloyd(cfg: LloydConfig) -> Policy:
+    """Steer toward the clipped Voronoi centroid: a = gain·(c − p) − damping·v, clipped to [-1, 1]."""
+
+    def policy(env: CoverageEnv) -> np.ndarray:
+        target = np.stack([voronoi_centroids(env.region.polygon, p) for p in env.pos])
+        return np.clip(cfg.gain * (target - env.pos) - cfg.damping * env.vel, -1.0, 1.0)
+
+    return policy

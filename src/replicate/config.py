@@ -1,0 +1,303 @@
+"""Typed, frozen configuration read from ``params.yaml``.
+
+YAML holds the values, these dataclasses hold the types (BenchMARL style). ``from_mapping`` refuses unknown,
+missing and mistyped keys with a message naming the key path, so a typo in ``params.yaml`` never passes
+silently.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Mapping
+
+import yaml
+
+DEFAULT_PARAMS = Path("params.yaml")
+
+
+class ConfigError(ValueError):
+    """A configuration value is unknown, missing or of the wrong type."""
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    n_agents: int
+    agent_radius: float
+    sensitivity: float
+    mass: float
+    dt: float
+    damping: float
+    episode_length: int
+    start_patch: float
+    region_area: float
+
+
+@dataclass(frozen=True)
+class CoverageConfig:
+    radius: float
+    edges: int
+    table_spacing: float
+    raster_spacing: float
+
+
+@dataclass(frozen=True)
+class SWRewardConfig:
+    r1: float
+    r2: float
+    alpha: float
+    beta: float
+    prop_range: tuple[float, float]
+    coll_range: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class CRRewardConfig:
+    r1: float
+    r2: float
+    r3: float
+    c1: float
+    c2: float
+
+
+@dataclass(frozen=True)
+class MethodConfig:
+    reward: Literal["sw", "cr"]
+    reward_mode: Literal["shared", "individual"]
+
+
+@dataclass(frozen=True)
+class MADDPGConfig:
+    hidden: int
+    actor_lr: float
+    critic_lr: float
+    gamma: float
+    tau: float
+    batch_size: int
+    buffer_size: int
+    learning_starts: int
+    update_every: int
+    grad_clip: float
+    actor_reg: float
+    noise_start: float
+    noise_end: float
+    noise_decay: float
+
+
+@dataclass(frozen=True)
+class AlgoConfig:
+    observation: Literal["position", "position_velocity"]
+    geofence: float | None
+    reward_scale: float
+    union_credit: Literal["shared", "difference"]
+    n_envs: int
+    maddpg: MADDPGConfig
+
+
+@dataclass(frozen=True)
+class RegionSpec:
+    kind: Literal["box", "file"]
+    width: float | None = None
+    height: float | None = None
+    path: str | None = None
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    episodes: int
+    seeds: tuple[int, ...]
+    checkpoint_every: int
+
+
+@dataclass(frozen=True)
+class RegressionConfig:
+    region: str
+    seed: int
+    episodes: int
+    n_envs: int
+    learning_starts: int
+    batch_size: int
+    tolerance: float
+
+
+@dataclass(frozen=True)
+class NaiveConfig:
+    attraction: float
+    avoid_range: float
+    avoidance: float
+    damping: float
+
+
+@dataclass(frozen=True)
+class LloydConfig:
+    gain: float
+    damping: float
+    converged_steps: int
+
+
+@dataclass(frozen=True)
+class EvaluateConfig:
+    episodes: int
+    seed: int
+    converge_window: int
+    converge_tolerance: float
+    converge_final: int
+    naive: NaiveConfig
+    lloyd: LloydConfig
+
+
+@dataclass(frozen=True)
+class Params:
+    """Everything in ``params.yaml``. Stage-specific sections the package does not read are kept as mappings."""
+
+    world: WorldConfig
+    coverage: CoverageConfig
+    sw_reward: SWRewardConfig
+    cr_reward: CRRewardConfig
+    methods: dict[str, MethodConfig]
+    configs: dict[str, AlgoConfig]
+    regions: dict[str, RegionSpec]
+    train: TrainConfig
+    regression: RegressionConfig
+    evaluate: EvaluateConfig
+    stages: dict[str, Any] = field(default_factory=dict)
+
+
+# Top-level sections that belong to pipeline stages (dvc.yaml) and are validated there.
+STAGE_SECTIONS = ("fetch_outline", "project_utm", "pipeline", "figures", "report")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """What one training run needs: the shared world plus one config x method."""
+
+    world: WorldConfig
+    coverage: CoverageConfig
+    sw_reward: SWRewardConfig
+    cr_reward: CRRewardConfig
+    method: MethodConfig
+    algo: AlgoConfig
+    config_name: str
+    method_name: str
+
+
+def _check(tp: Any, value: Any, where: str) -> Any:
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if dataclasses.is_dataclass(tp):
+        return from_mapping(tp, value, where)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _check(inner[0], value, where)
+    if origin is Literal:
+        if value not in args:
+            raise ConfigError(f"{where}: {value!r} is not one of {list(args)}")
+        return value
+    if origin is dict:
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{where}: expected a mapping, got {type(value).__name__}")
+        return {str(k): _check(args[1], v, f"{where}.{k}") for k, v in value.items()}
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}: expected a list, got {type(value).__name__}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_check(args[0], v, f"{where}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(f"{where}: expected {len(args)} items, got {len(value)}")
+        return tuple(_check(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
+    if tp is Any:
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true/false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return value
+    raise TypeError(f"unsupported annotation {tp!r} at {where}")  # pragma: no cover - programming error
+
+
+def from_mapping(cls: type, data: Any, where: str = "params") -> Any:
+    """Build dataclass ``cls`` from ``data``, refusing unknown, missing and mistyped keys."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {unknown}; known: {sorted(fields)}")
+    kwargs = {}
+    for name, f in fields.items():
+        if name not in data:
+            if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING:
+                continue
+            raise ConfigError(f"{where}: missing key {name!r}")
+        kwargs[name] = _check(hints[name], data[name], f"{where}.{name}")
+    return cls(**kwargs)
+
+
+def load_params(path: str | Path = DEFAULT_PARAMS, overrides: Mapping[str, Any] | None = None) -> Params:
+    """Read and validate ``params.yaml``; ``overrides`` maps dotted keys to values (``train.episodes``)."""
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"{path}: no such parameters file")
+    with open(path) as fh:
+        raw = yaml.safe_load(fh)
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path}: expected a mapping at the top level")
+    for dotted, value in (overrides or {}).items():
+        node = raw
+        keys = dotted.split(".")
+        for k in keys[:-1]:
+            if not isinstance(node.get(k), dict):
+                raise ConfigError(f"override {dotted!r}: no section {k!r}")
+            node = node[k]
+        if keys[-1] not in node:
+            raise ConfigError(f"override {dotted!r}: unknown key {keys[-1]!r}")
+        node[keys[-1]] = value
+    stages = {k: raw.pop(k) for k in STAGE_SECTIONS if k in raw}
+    params = from_mapping(Params, raw, str(path))
+    return dataclasses.replace(params, stages=stages)
+
+
+def run_config(params: Params, config: str, method: str) -> RunConfig:
+    """Select one configuration (``paper``/``tuned``) and method (``sw``/``cr``)."""
+    if config not in params.configs:
+        raise ConfigError(f"unknown config {config!r}; known: {sorted(params.configs)}")
+    if method not in params.methods:
+        raise ConfigError(f"unknown method {method!r}; known: {sorted(params.methods)}")
+    return RunConfig(
+        world=params.world,
+        coverage=params.coverage,
+        sw_reward=params.sw_reward,
+        cr_reward=params.cr_reward,
+        method=params.methods[method],
+        algo=params.configs[config],
+        config_name=config,
+        method_name=method,
+    )
+
+
+def to_dict(obj: Any) -> Any:
+    """A dataclass as plain JSON/YAML-friendly data (tuples become lists)."""
+    if dataclasses.is_dataclass(obj):
+        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, dict):
+        return {k: to_dict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_dict(v) for v in obj]
+    return obj

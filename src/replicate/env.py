@@ -1,0 +1,172 @@
+"""The coverage world (SPEC §1): MPE point-mass physics for E parallel environments × N buoys.
+
+Every array is batched ``[E, N, ...]``. The environment owns one explicit ``numpy.random.Generator``; nothing
+else draws random numbers. Episodes have a fixed length T, so all E environments start and end together.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon, box
+from shapely.ops import nearest_points
+
+from . import rewards
+from .config import CoverageConfig, CRRewardConfig, SWRewardConfig, WorldConfig
+from .geometry import CoverageGeometry
+from .regions import Region, signed_distance
+
+OBSERVATIONS = ("position", "position_velocity")
+
+
+@dataclass
+class StepResult:
+    """One step of E environments: obs [E, N, obs_dim], reward [E, N], union_area [E] (NaN for SW)."""
+
+    obs: np.ndarray
+    reward: np.ndarray
+    union_area: np.ndarray
+    done: bool
+
+
+def start_patch(region: Polygon, side: float) -> Polygon:
+    """SPEC §1 start: a ``side`` × ``side`` square around the interior point nearest the lower-left corner of
+    the region's box, clipped to the region (for a box region, exactly its lower-left corner square)."""
+    minx, miny, _, _ = region.bounds
+    inner = region.buffer(-side / 2, join_style="mitre")
+    if inner.is_empty:
+        raise ValueError(f"the region is too small for a {side} m start patch")
+    corner = shapely.Point(minx, miny)
+    _, nearest = nearest_points(corner, inner)
+    patch = box(nearest.x - side / 2, nearest.y - side / 2, nearest.x + side / 2, nearest.y + side / 2)
+    return patch.intersection(region)
+
+
+class CoverageEnv:
+    """E parallel copies of the buoy world over one region.
+
+    ``reward`` is ``"sw"`` (eq. sw-RegAtt + sw-InterAg, shared), ``"cr"`` (eq. 5-6, per agent) or ``None``
+    (no reward, for baselines). ``union_credit`` ``"difference"`` replaces eq. (6)'s shared union term by each
+    agent's marginal contribution to it (SPEC §6 lead). ``geofence`` (metres, or ``None``) clamps positions
+    to the region's box grown by that margin and stops the velocity component into the fence.
+    """
+
+    def __init__(
+        self,
+        region: Region,
+        world: WorldConfig,
+        coverage: CoverageConfig,
+        *,
+        n_envs: int = 1,
+        reward: str | None = None,
+        sw: SWRewardConfig | None = None,
+        cr: CRRewardConfig | None = None,
+        observation: str = "position",
+        geofence: float | None = None,
+        union_credit: str = "shared",
+        seed: int | np.random.SeedSequence = 0,
+    ):
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
+        if reward not in (None, "sw", "cr"):
+            raise ValueError(f"reward must be 'sw', 'cr' or None, got {reward!r}")
+        if reward == "sw" and sw is None or reward == "cr" and cr is None:
+            raise ValueError(f"reward {reward!r} needs its reward config")
+        if union_credit not in ("shared", "difference"):
+            raise ValueError(f"union_credit must be 'shared' or 'difference', got {union_credit!r}")
+        if n_envs < 1 or world.n_agents < 1:
+            raise ValueError("n_envs and n_agents must be at least 1")
+        self.region = region
+        self.world = world
+        self.coverage = coverage
+        self.n_envs = n_envs
+        self.n_agents = world.n_agents
+        self.reward_kind = reward
+        self.sw, self.cr = sw, cr
+        self.observation = observation
+        self.union_credit = union_credit
+        self.obs_dim = 2 if observation == "position" else 4
+        self.geometry = CoverageGeometry(
+            region.polygon, coverage.radius, coverage.edges, coverage.table_spacing, coverage.raster_spacing
+        )
+        self.patch = start_patch(region.polygon, world.start_patch)
+        if geofence is None:
+            self.fence = None
+        else:
+            minx, miny, maxx, maxy = region.polygon.bounds
+            self.fence = (np.array([minx, miny]) - geofence, np.array([maxx, maxy]) + geofence)
+        self.rng = np.random.default_rng(seed)
+        self.pos = np.zeros((n_envs, self.n_agents, 2))
+        self.vel = np.zeros((n_envs, self.n_agents, 2))
+        self.t = 0
+
+    # ---- episode -----------------------------------------------------------------------------------------
+    def seed(self, seed: int | np.random.SeedSequence) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def sample_start(self, count: int) -> np.ndarray:
+        """``count`` positions uniform in the start patch (rejection sampling from its box). → [count, 2]."""
+        minx, miny, maxx, maxy = self.patch.bounds
+        out = np.empty((0, 2))
+        while len(out) < count:
+            cand = self.rng.uniform((minx, miny), (maxx, maxy), size=(2 * count, 2))
+            out = np.concatenate([out, cand[shapely.contains_xy(self.patch, cand[:, 0], cand[:, 1])]])
+        return out[:count]
+
+    def reset(self, seed: int | np.random.SeedSequence | None = None) -> np.ndarray:
+        """Release all buoys in the start patch at rest. → obs [E, N, obs_dim]."""
+        if seed is not None:
+            self.seed(seed)
+        self.pos = self.sample_start(self.n_envs * self.n_agents).reshape(self.n_envs, self.n_agents, 2)
+        self.vel = np.zeros_like(self.pos)
+        self.t = 0
+        return self.observe()
+
+    def observe(self) -> np.ndarray:
+        """Own position (paper) or own position and velocity. → [E, N, obs_dim] float32."""
+        obs = self.pos if self.observation == "position" else np.concatenate([self.pos, self.vel], axis=-1)
+        return obs.astype(np.float32)
+
+    # ---- dynamics ----------------------------------------------------------------------------------------
+    def integrate(self, action: np.ndarray) -> None:
+        """MPE semi-implicit Euler: v ← v(1 − damping) + (F/m)dt, p ← p + v dt, F = sensitivity·a."""
+        w = self.world
+        force = w.sensitivity * np.clip(action, -1.0, 1.0)
+        self.vel = self.vel * (1.0 - w.damping) + (force / w.mass) * w.dt
+        self.pos = self.pos + self.vel * w.dt
+        if self.fence is not None:
+            lo, hi = self.fence
+            clamped = np.clip(self.pos, lo, hi)
+            self.vel = np.where(clamped != self.pos, 0.0, self.vel)
+            self.pos = clamped
+
+    def step(self, action: np.ndarray) -> StepResult:
+        """Apply actions [E, N, 2] in [-1, 1] and return the new observation and the rewards."""
+        action = np.asarray(action, dtype=float)
+        if action.shape != (self.n_envs, self.n_agents, 2):
+            raise ValueError(f"action must have shape {(self.n_envs, self.n_agents, 2)}, got {action.shape}")
+        self.integrate(action)
+        self.t += 1
+        reward, union = self.reward()
+        return StepResult(self.observe(), reward, union, self.t >= self.world.episode_length)
+
+    def reward(self) -> tuple[np.ndarray, np.ndarray]:
+        """The configured reward at the current positions: ([E, N], union area [E] or NaN)."""
+        if self.reward_kind == "sw":
+            d = signed_distance(self.region.polygon, self.pos)
+            return rewards.sw_reward(d, self.pos, self.sw), np.full(self.n_envs, np.nan)
+        if self.reward_kind == "cr":
+            terms = self.geometry.cover_terms(self.pos)
+            if self.union_credit == "difference":
+                union, credit = self.geometry.union_area(self.pos, terms.area, marginal=True)
+            else:
+                union = credit = self.geometry.union_area(self.pos, terms.area)
+            return rewards.cr_reward(terms, credit, self.cr), union
+        return np.zeros((self.n_envs, self.n_agents)), np.full(self.n_envs, np.nan)
+
+    def coverage_fraction(self) -> np.ndarray:
+        """Fast-path coverage fraction of the current positions (SPEC §8 uses the exact one). → [E]."""
+        terms = self.geometry.cover_terms(self.pos)
+        return self.geometry.union_area(self.pos, terms.area) / self.region.area

@@ -1,0 +1,128 @@
+"""Evaluation (SPEC §8): a trained run or a baseline, 100 episodes with fixed evaluation seeds, into JSON.
+
+All evaluation episodes run at once as E = ``episodes`` parallel environments from the evaluation seed, so a
+method and a baseline start from the same positions. Policies are deterministic (no exploration noise).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from . import baselines, metrics
+from .config import ConfigError, Params, RunConfig, run_config
+from .env import CoverageEnv
+from .regions import Region
+from .train import load_actors
+
+BASELINES = ("random", "naive", "lloyd", "lloyd_converged")
+
+
+def rollout(env: CoverageEnv, policy, steps: int, seed: int) -> dict:
+    """Run ``policy`` for ``steps`` from a reset with ``seed``; positions at every step [steps + 1, E, N, 2]."""
+    env.reset(seed)
+    trace = [env.pos.copy()]
+    for _ in range(steps):
+        env.integrate(policy(env))
+        trace.append(env.pos.copy())
+    return {"positions": np.stack(trace)}
+
+
+def summarise(region: Region, xy: np.ndarray, radius: float, edges: int) -> dict:
+    """SPEC §8 metrics of final positions xy [E, N, 2]: per-episode values and their mean with 95 % CI."""
+    cov = metrics.coverage_fraction(region.polygon, xy, radius, edges)
+    nn = metrics.mean_nearest_neighbour(xy)
+    inside = metrics.fraction_inside(region.polygon, xy, radius, edges)
+    return {
+        "coverage": metrics.mean_ci(cov),
+        "nearest_neighbour": metrics.mean_ci(nn),
+        "fraction_inside": metrics.mean_ci(inside),
+        "per_episode": {"coverage": cov.round(6).tolist()},
+    }
+
+
+def actor_policy(net, observation: str) -> baselines.Policy:
+    """The trained decentralised actors as a deterministic policy: a_i = tanh(μ_i(o_i))."""
+
+    def policy(env: CoverageEnv) -> np.ndarray:
+        obs = env.observe()
+        with torch.no_grad():
+            x = torch.from_numpy(np.ascontiguousarray(obs.transpose(1, 0, 2)))
+            return torch.tanh(net(x)).transpose(0, 1).numpy().astype(float)
+
+    return policy
+
+
+def read_curve(path: str | Path) -> dict[str, np.ndarray]:
+    with open(path) as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        raise ValueError(f"{path}: empty curve")
+    return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
+
+
+def evaluate_run(run_dir: str | Path, params: Params, region: Region) -> dict:
+    """Metrics of a finished run: deterministic evaluation plus convergence from its training curve."""
+    run_dir = Path(run_dir)
+    net, meta = load_actors(run_dir / "actors.pt")
+    ident = meta["identity"]
+    rc = run_config(params, ident["config"], ident["method"])
+    ev = params.evaluate
+    env = eval_env(region, rc, ev.episodes, rc.algo.observation)
+    if meta["observation"] != rc.algo.observation:
+        raise ConfigError(f"{run_dir}: actors observe {meta['observation']!r}, params say {rc.algo.observation!r}")
+    pos = rollout(env, actor_policy(net, meta["observation"]), rc.world.episode_length, ev.seed)["positions"]
+    out = summarise(region, pos[-1], rc.coverage.radius, rc.coverage.edges)
+    curve = read_curve(run_dir / "curve.csv")
+    conv = metrics.convergence_episode(curve["team_reward"], ev.converge_window, ev.converge_tolerance, ev.converge_final)
+    run = json.loads((run_dir / "run.json").read_text())
+    out.update(
+        kind="run",
+        config=ident["config"],
+        method=ident["method"],
+        region=ident["region"],
+        seed=ident["seed"],
+        episodes=ident["episodes"],
+        convergence_episode=conv,
+        training_coverage_last100=float(curve["coverage"][-100:].mean()),
+        wall_seconds=run.get("wall_seconds"),
+    )
+    return out
+
+
+def eval_env(region: Region, rc: RunConfig, episodes: int, observation: str = "position") -> CoverageEnv:
+    return CoverageEnv(
+        region,
+        rc.world,
+        rc.coverage,
+        n_envs=episodes,
+        observation=observation,
+        geofence=rc.algo.geofence,
+    )
+
+
+def evaluate_baseline(name: str, params: Params, region: Region, config: str = "paper") -> dict:
+    """Metrics of a baseline with the same physics, T and start as the runs of ``config``."""
+    if name not in BASELINES:
+        raise ConfigError(f"unknown baseline {name!r}; known: {list(BASELINES)}")
+    rc = run_config(params, config, "cr")
+    ev = params.evaluate
+    env = eval_env(region, rc, ev.episodes)
+    steps = rc.world.episode_length
+    if name == "random":
+        policy = baselines.random_policy(np.random.default_rng(ev.seed + 1))
+    elif name == "naive":
+        policy = baselines.naive_swarming(ev.naive)
+    else:
+        policy = baselines.lloyd(ev.lloyd)
+        if name == "lloyd_converged":
+            steps = ev.lloyd.converged_steps
+    pos = rollout(env, policy, steps, ev.seed)["positions"]
+    out = summarise(region, pos[-1], rc.coverage.radius, rc.coverage.edges)
+    out.update(kind="baseline", baseline=name, region=region.name, steps=steps, config=config)
+    out["ceiling"] = metrics.coverage_ceiling(region.area, rc.world.n_agents, rc.coverage.radius, rc.coverage.edges)
+    return out

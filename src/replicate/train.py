@@ -1,0 +1,250 @@
+"""The training loop: E parallel environments, MADDPG updates, per-episode curve, resumable checkpoints.
+
+A run directory holds ``run.json`` (what was run), ``curve.csv`` (one row per episode), ``checkpoint.pt``
+(everything needed to continue: networks, optimisers, replay buffer, generator states, the curve so far) and,
+at the end, ``actors.pt`` (the trained decentralised policies).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from . import artifacts
+from .artifacts import CHECKPOINT_FORMAT, CheckpointError
+from .config import ConfigError, RunConfig, to_dict
+from .env import CoverageEnv
+from .geometry import region_key
+from .maddpg import MADDPG, ReplayBuffer
+from .regions import Region
+
+DIAGNOSTICS = ("critic_loss", "q_abs", "saturated", "noise")
+
+
+def curve_header(n_agents: int) -> list[str]:
+    return ["episode", *[f"reward_{i}" for i in range(n_agents)], "team_reward", "coverage", *DIAGNOSTICS]
+
+
+def noise_sigma(cfg, progress: float) -> float:
+    """Exploration σ: linear from noise_start to noise_end over the first ``noise_decay`` of training."""
+    if cfg.noise_decay <= 0:
+        return cfg.noise_end
+    frac = min(progress / cfg.noise_decay, 1.0)
+    return cfg.noise_start + frac * (cfg.noise_end - cfg.noise_start)
+
+
+def make_env(region: Region, rc: RunConfig, n_envs: int, seed) -> CoverageEnv:
+    """The training environment of a run config (reward, observation, geofence, credit from params.yaml)."""
+    return CoverageEnv(
+        region,
+        rc.world,
+        rc.coverage,
+        n_envs=n_envs,
+        reward=rc.method.reward,
+        sw=rc.sw_reward,
+        cr=rc.cr_reward,
+        observation=rc.algo.observation,
+        geofence=rc.algo.geofence,
+        union_credit=rc.algo.union_credit,
+        seed=seed,
+    )
+
+
+@dataclass
+class Trainer:
+    """One training run. ``run`` trains up to ``episodes``; construct with ``resume=True`` to continue."""
+
+    rc: RunConfig
+    region: Region
+    episodes: int
+    seed: int
+    out: Path
+    checkpoint_every: int = 1000
+    progress: bool = True
+    rows: list = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        algo = self.rc.algo
+        if self.episodes < 1:
+            raise ConfigError(f"episodes must be positive, got {self.episodes}")
+        if self.episodes % algo.n_envs:
+            raise ConfigError(f"episodes ({self.episodes}) must be a multiple of n_envs ({algo.n_envs})")
+        self.out = Path(self.out)
+        seeds = np.random.SeedSequence(self.seed).spawn(3)
+        self.env = make_env(self.region, self.rc, algo.n_envs, seeds[0])
+        self.noise_rng = np.random.default_rng(seeds[1])
+        self.sample_rng = np.random.default_rng(seeds[2])
+        n, od = self.env.n_agents, self.env.obs_dim
+        self.agent = MADDPG(n, od, 2, algo.maddpg, self.rc.method.reward_mode, seed=self.seed)
+        capacity = min(algo.maddpg.buffer_size, self.episodes * self.rc.world.episode_length)
+        self.buffer = ReplayBuffer(capacity, n, od, 2)
+        self.transitions = 0
+        self.pending_updates = 0.0
+        self.wall = 0.0
+
+    # ---- identity of a run, checked on resume ----------------------------------------------------------
+    def identity(self) -> dict:
+        return {
+            "config": self.rc.config_name,
+            "method": self.rc.method_name,
+            "region": self.region.name,
+            "region_key": region_key(self.region.polygon),
+            "seed": self.seed,
+            "episodes": self.episodes,
+            "params": to_dict(self.rc),
+        }
+
+    def run(self) -> dict:
+        """Train to ``episodes``, checkpointing on the way; returns the run summary."""
+        algo, world = self.rc.algo, self.rc.world
+        cfg = algo.maddpg
+        n_env, n, horizon = algo.n_envs, self.env.n_agents, world.episode_length
+        start_batch = len(self.rows) // n_env
+        n_batches = self.episodes // n_env
+        artifacts.write_json(self.out / "run.json", {**self.identity(), "status": "running"})
+        bar = tqdm(total=self.episodes, initial=len(self.rows), disable=not self.progress, unit="ep", smoothing=0.05)
+        t0 = time.perf_counter() - self.wall
+        for batch in range(start_batch, n_batches):
+            sigma = noise_sigma(cfg, batch * n_env / self.episodes)
+            obs = self.env.reset()
+            returns = np.zeros((n_env, n))
+            diag = {"critic_loss": [], "q_abs": []}
+            saturated = 0.0
+            for _ in range(horizon):
+                action, mu = self.agent.act(obs, sigma, self.noise_rng)
+                saturated += float((np.abs(mu) > 0.99).mean())
+                step = self.env.step(action)
+                self.buffer.add(obs, action, step.reward * algo.reward_scale, step.obs)
+                returns += step.reward
+                obs = step.obs
+                self.transitions += n_env
+                if self.buffer.size >= cfg.learning_starts:
+                    self.pending_updates += n_env / cfg.update_every
+                    while self.pending_updates >= 1.0:
+                        self.pending_updates -= 1.0
+                        stats = self.agent.update(self.buffer.sample(self.sample_rng, cfg.batch_size))
+                        diag["critic_loss"].append(stats["critic_loss"])
+                        diag["q_abs"].append(stats["q_abs"])
+            coverage = self.env.coverage_fraction()
+            loss = float(np.mean(diag["critic_loss"])) if diag["critic_loss"] else math.nan
+            q_abs = float(np.mean(diag["q_abs"])) if diag["q_abs"] else math.nan
+            for e in range(n_env):
+                episode = batch * n_env + e
+                team = float(returns[e].mean())
+                self.rows.append(
+                    [episode, *returns[e].tolist(), team, float(coverage[e]), loss, q_abs, saturated / horizon, sigma]
+                )
+            bar.update(n_env)
+            bar.set_postfix(reward=f"{returns.mean():.1f}", coverage=f"{coverage.mean():.2f}")
+            done = (batch + 1) * n_env
+            if done % self.checkpoint_every < n_env and done < self.episodes:
+                self.wall = time.perf_counter() - t0
+                self.save_checkpoint()
+        bar.close()
+        self.wall = time.perf_counter() - t0
+        self.save_checkpoint()
+        self.save_actors()
+        summary = {
+            **self.identity(),
+            "status": "finished",
+            "wall_seconds": round(self.wall, 2),
+            "transitions": self.transitions,
+            "final_coverage_last100": float(np.mean([r[n + 2] for r in self.rows[-100:]])),
+        }
+        artifacts.write_json(self.out / "run.json", summary)
+        return summary
+
+    # ---- persistence ------------------------------------------------------------------------------------
+    def save_checkpoint(self) -> None:
+        header = curve_header(self.env.n_agents)
+        artifacts.write_csv(self.out / "curve.csv", header, self.rows)
+        state = {
+            "format": CHECKPOINT_FORMAT,
+            "identity": self.identity(),
+            "agent": self.agent.state_dict(),
+            "buffer": self.buffer.state_dict(),
+            "rng": {
+                "env": self.env.rng.bit_generator.state,
+                "noise": self.noise_rng.bit_generator.state,
+                "sample": self.sample_rng.bit_generator.state,
+            },
+            "rows": self.rows,
+            "transitions": self.transitions,
+            "pending_updates": self.pending_updates,
+            "wall": self.wall,
+        }
+        artifacts.torch_save(self.out / "checkpoint.pt", state)
+
+    def load_checkpoint(self) -> None:
+        path = self.out / "checkpoint.pt"
+        state = artifacts.torch_load(path)
+        mine, theirs = self.identity(), state.get("identity", {})
+        diffs = sorted(k for k in mine if mine[k] != theirs.get(k))
+        if diffs:
+            raise CheckpointError(f"{path}: checkpoint does not match this run (differs in {', '.join(diffs)})")
+        try:
+            self.agent.load_state_dict(state["agent"])
+            self.buffer.load_state_dict(state["buffer"])
+            self.env.rng.bit_generator.state = state["rng"]["env"]
+            self.noise_rng.bit_generator.state = state["rng"]["noise"]
+            self.sample_rng.bit_generator.state = state["rng"]["sample"]
+        except (KeyError, RuntimeError, ValueError, TypeError) as exc:
+            raise CheckpointError(f"{path}: checkpoint is incomplete or mismatched ({exc})") from exc
+        self.rows = [list(r) for r in state["rows"]]
+        self.transitions = int(state["transitions"])
+        self.pending_updates = float(state["pending_updates"])
+        self.wall = float(state["wall"])
+
+    def save_actors(self) -> None:
+        artifacts.torch_save(
+            self.out / "actors.pt",
+            {
+                "format": CHECKPOINT_FORMAT,
+                "identity": self.identity(),
+                "observation": self.rc.algo.observation,
+                "obs_dim": self.env.obs_dim,
+                "hidden": self.rc.algo.maddpg.hidden,
+                "actor": self.agent.actor.state_dict(),
+            },
+        )
+
+
+def train(
+    rc: RunConfig,
+    region: Region,
+    episodes: int,
+    seed: int,
+    out: str | Path,
+    checkpoint_every: int = 1000,
+    resume: bool = False,
+    progress: bool = True,
+) -> dict:
+    """Train one run into ``out`` (``resume`` continues from its checkpoint, refusing a mismatched one)."""
+    torch.set_num_threads(1)
+    trainer = Trainer(rc, region, episodes, seed, Path(out), checkpoint_every, progress)
+    if resume:
+        trainer.load_checkpoint()
+    elif (Path(out) / "checkpoint.pt").exists():
+        raise CheckpointError(f"{out}: already holds a run; pass --resume to continue it or choose a new folder")
+    return trainer.run()
+
+
+def load_actors(path: str | Path):
+    """(actor network [N stacked], metadata) from an ``actors.pt`` written by a run."""
+    from .maddpg import BatchedMLP
+
+    state = artifacts.torch_load(path, "actors file")
+    try:
+        actor_state = state["actor"]
+        n = actor_state["weights.0"].shape[0]
+        net = BatchedMLP(n, [state["obs_dim"], state["hidden"], state["hidden"], 2], torch.Generator())
+        net.load_state_dict(actor_state)
+    except (KeyError, RuntimeError) as exc:
+        raise CheckpointError(f"{path}: actors file is incomplete or mismatched ({exc})") from exc
+    return net, state

@@ -1,0 +1,27 @@
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+os.environ.setdefault("DVC_NO_ANALYTICS", "1")
+
+
+@pytest.fixture(scope="session")
+def params():
+    from replicate.config import load_params
+
+    return load_params(ROOT / "params.yaml")
+
+
+@pytest.fixture(scope="session")
+def regions(params):
+    """The three regions of the paper, built once per session (Bedok from the bundled outline)."""
+    from replicate.regions import make_region
+
+    return {
+        name: make_region(name, params.regions[name], params.world.region_area, root=ROOT)
+        for name in ("square", "rectangle", "bedok")
+    }

@@ -1,0 +1,86 @@
+"""params.yaml against the typed config: the YAML holds values, the dataclasses types; they must match."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import yaml
+
+from replicate.config import (
+    STAGE_SECTIONS,
+    AlgoConfig,
+    ConfigError,
+    MADDPGConfig,
+    Params,
+    load_params,
+    run_config,
+)
+
+from .conftest import ROOT
+
+
+def test_params_yaml_matches_dataclasses(params):
+    raw = yaml.safe_load((ROOT / "params.yaml").read_text())
+    package_sections = {f.name for f in dataclasses.fields(Params)} - {"stages"}
+    assert set(raw) - set(STAGE_SECTIONS) == package_sections
+    for name in ("paper", "tuned"):
+        assert set(raw["configs"][name]) == {f.name for f in dataclasses.fields(AlgoConfig)}
+        assert set(raw["configs"][name]["maddpg"]) == {f.name for f in dataclasses.fields(MADDPGConfig)}
+    assert params.configs["paper"].maddpg.actor_lr == 0.01  # SPEC §5 openai/maddpg default
+
+
+def test_paper_config_is_the_spec(params):
+    """SPEC §1-§5 values, read back from params.yaml."""
+    w, m = params.world, params.configs["paper"].maddpg
+    assert (w.n_agents, w.agent_radius, w.sensitivity, w.dt, w.damping) == (9, 0.08, 5.0, 0.1, 0.25)
+    assert (params.coverage.radius, params.coverage.edges) == (0.5, 30)
+    assert (m.hidden, m.gamma, m.tau, m.batch_size, m.buffer_size) == (64, 0.95, 0.01, 1024, 1_000_000)
+    assert (m.learning_starts, m.update_every, m.grad_clip, m.actor_reg) == (1024 * 25, 100, 0.5, 1e-3)
+    assert params.configs["paper"].observation == "position" and params.configs["paper"].geofence is None
+    assert params.methods["sw"].reward_mode == "shared" and params.methods["cr"].reward_mode == "individual"
+    assert params.train.episodes == 10_000
+
+
+def write(tmp_path, mutate):
+    raw = yaml.safe_load((ROOT / "params.yaml").read_text())
+    mutate(raw)
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda r: r["world"].update(n_agnets=9), r"params.yaml.world: unknown key\(s\) \['n_agnets'\]"),
+        (lambda r: r["world"].pop("dt"), "params.yaml.world: missing key 'dt'"),
+        (lambda r: r["world"].update(n_agents="nine"), "world.n_agents: expected an integer"),
+        (lambda r: r["world"].update(n_agents=9.5), "world.n_agents: expected an integer"),
+        (lambda r: r["configs"]["paper"].update(observation="pixels"), "observation: 'pixels' is not one of"),
+        (lambda r: r["configs"]["paper"]["maddpg"].update(gamma=True), "maddpg.gamma: expected a number"),
+        (lambda r: r["sw_reward"].update(prop_range=[0.85]), "prop_range: expected 2 items"),
+        (lambda r: r.update(extra={}), r"unknown key\(s\) \['extra'\]"),
+    ],
+)
+def test_bad_params_are_refused(tmp_path, mutate, message):
+    with pytest.raises(ConfigError, match=message):
+        load_params(write(tmp_path, mutate))
+
+
+def test_overrides_and_selection(params):
+    p = load_params(ROOT / "params.yaml", {"train.episodes": 40})
+    assert p.train.episodes == 40
+    with pytest.raises(ConfigError, match="unknown key"):
+        load_params(ROOT / "params.yaml", {"train.epsiodes": 40})
+    with pytest.raises(ConfigError, match="unknown config"):
+        run_config(params, "best", "cr")
+    with pytest.raises(ConfigError, match="unknown method"):
+        run_config(params, "paper", "xx")
+    with pytest.raises(ConfigError, match="no such parameters file"):
+        load_params(ROOT / "nope.yaml")
+
+
+def test_configs_are_frozen(params):
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        params.world.n_agents = 3  # type: ignore[misc]

@@ -1,0 +1,121 @@
+"""The environment: one MPE step written out by hand, the start patch, observations, geofence, seeding."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+
+from replicate.env import CoverageEnv
+
+
+def make(params, region, **kw):
+    return CoverageEnv(region, params.world, params.coverage, sw=params.sw_reward, cr=params.cr_reward, **kw)
+
+
+def test_one_step_is_the_mpe_update(params, regions):
+    env = make(params, regions["square"], n_envs=2, seed=0)
+    env.reset()
+    env.pos = np.array([[[0.1, 0.2]] * 9, [[-0.3, 0.4]] * 9], dtype=float)
+    env.vel = np.full((2, 9, 2), 0.5)
+    action = np.zeros((2, 9, 2))
+    action[0, 0] = [1.0, -0.5]
+    action[1, 3] = [2.0, 0.0]  # out of range: clipped to 1
+    env.step(action)
+    # MPE integrate_state: v ← v·(1 − 0.25); v ← v + (F/m)·dt with F = 5·a; p ← p + v·dt
+    v0 = 0.5 * 0.75 + 5.0 * np.array([1.0, -0.5]) / 1.0 * 0.1  # = [0.875, 0.125]
+    np.testing.assert_allclose(env.vel[0, 0], v0)
+    np.testing.assert_allclose(env.pos[0, 0], np.array([0.1, 0.2]) + v0 * 0.1)
+    np.testing.assert_allclose(env.vel[1, 3], [0.375 + 0.5, 0.375])
+    np.testing.assert_allclose(env.vel[0, 1], [0.375, 0.375])  # no force: only damping
+
+
+def test_terminal_speed_is_two_metres_per_second(params, regions):
+    env = make(params, regions["square"], n_envs=1, seed=0)
+    env.reset()
+    for _ in range(200):
+        env.integrate(np.ones((1, 9, 2)))
+    np.testing.assert_allclose(env.vel, 2.0, rtol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["square", "rectangle", "bedok"])
+def test_start_patch_inside_region_at_lower_left(params, regions, name):
+    env = make(params, regions[name], n_envs=50, seed=3)
+    env.reset()
+    flat = env.pos.reshape(-1, 2)
+    assert shapely.contains_xy(regions[name].polygon, flat[:, 0], flat[:, 1]).all()
+    assert shapely.contains_xy(env.patch, flat[:, 0], flat[:, 1]).all()
+    assert np.all(env.vel == 0)
+    minx, miny, _, _ = env.patch.bounds
+    assert env.patch.bounds[2] - minx <= 0.5 + 1e-9
+    if name == "square":
+        assert env.patch.bounds == pytest.approx((-1.5, -1.5, -1.0, -1.0))
+
+
+def test_observation_modes(params, regions):
+    env = make(params, regions["square"], n_envs=3, observation="position_velocity", seed=0)
+    obs = env.reset()
+    assert obs.shape == (3, 9, 4) and obs.dtype == np.float32
+    step = env.step(np.ones((3, 9, 2)))
+    np.testing.assert_allclose(step.obs[..., :2], env.pos, rtol=1e-6)
+    np.testing.assert_allclose(step.obs[..., 2:], env.vel, rtol=1e-6)
+    assert make(params, regions["square"], n_envs=3, seed=0).reset().shape == (3, 9, 2)
+
+
+def test_geofence_clamps_to_grown_box(params, regions):
+    env = make(params, regions["rectangle"], n_envs=2, geofence=0.5, seed=0)
+    env.reset()
+    for _ in range(100):
+        env.step(np.ones((2, 9, 2)))
+    np.testing.assert_allclose(env.pos[..., 0], 5.0)
+    np.testing.assert_allclose(env.pos[..., 1], 1.0)
+    assert np.all(env.vel == 0)  # the velocity into the fence is stopped
+
+
+def test_unbounded_without_geofence(params, regions):
+    env = make(params, regions["square"], n_envs=1, seed=0)
+    env.reset()
+    for _ in range(100):
+        env.step(np.ones((1, 9, 2)))
+    assert env.pos.min() > 15.0
+
+
+def test_seeding(params, regions):
+    a = make(params, regions["square"], n_envs=4, seed=7).reset()
+    b = make(params, regions["square"], n_envs=4, seed=7).reset()
+    c = make(params, regions["square"], n_envs=4, seed=8).reset()
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_rewards_have_shapes_and_sharing(params, regions):
+    sw = make(params, regions["square"], n_envs=3, reward="sw", seed=0)
+    sw.reset()
+    r = sw.step(np.zeros((3, 9, 2))).reward
+    assert r.shape == (3, 9) and np.all(r == r[:, :1])  # shared
+    cr = make(params, regions["square"], n_envs=3, reward="cr", seed=0)
+    cr.reset()
+    step = cr.step(np.random.default_rng(0).uniform(-1, 1, (3, 9, 2)))
+    assert step.reward.shape == (3, 9) and not np.all(step.reward == step.reward[:, :1])
+    assert np.all(step.union_area > 0)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"observation": "pixels"}, "observation"),
+        ({"reward": "dense"}, "reward"),
+        ({"union_credit": "magic"}, "union_credit"),
+        ({"n_envs": 0}, "n_envs"),
+    ],
+)
+def test_bad_arguments_are_refused(params, regions, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        make(params, regions["square"], **kwargs)
+
+
+def test_bad_action_shape(params, regions):
+    env = make(params, regions["square"], n_envs=2, seed=0)
+    env.reset()
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros((2, 8, 2)))

@@ -1,0 +1,89 @@
+"""The fast geometry against the exact shapely reference on random configurations of every region (SPEC §4)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+
+from replicate.geometry import CoverageGeometry, cover_terms_exact, minkowski, polygon_offsets, union_area_exact
+
+REGIONS = ("square", "rectangle", "bedok")
+
+
+@pytest.fixture(scope="module")
+def geometries(params, regions):
+    c = params.coverage
+    return {
+        name: CoverageGeometry(regions[name].polygon, c.radius, c.edges, c.table_spacing, c.raster_spacing)
+        for name in REGIONS
+    }
+
+
+def random_configs(region, rng, n_env=150, n=9):
+    """Half uniform over the region's box grown by 1 m, half clumped around a random interior point."""
+    minx, miny, maxx, maxy = region.bounds
+    spread = rng.uniform((minx - 1, miny - 1), (maxx + 1, maxy + 1), (n_env // 2, n, 2))
+    centre = rng.uniform((minx, miny), (maxx, maxy), (n_env - n_env // 2, 1, 2))
+    clumped = centre + rng.normal(0.0, 0.4, (n_env - n_env // 2, n, 2))
+    return np.concatenate([spread, clumped])
+
+
+@pytest.mark.parametrize("name", REGIONS)
+def test_cover_terms_match_shapely(name, regions, geometries, params):
+    region = regions[name].polygon
+    xy = random_configs(region, np.random.default_rng(1))
+    exact = cover_terms_exact(region, xy, params.coverage.radius, params.coverage.edges)
+    fast = geometries[name].cover_terms(xy)
+    np.testing.assert_array_equal(fast.inside, exact.inside)
+    np.testing.assert_array_equal(fast.disjoint, exact.disjoint)
+    assert np.abs(fast.area - exact.area).max() < 1e-3  # SPEC §4: per-agent terms within 1e-3 m²
+    assert np.abs(fast.distance - exact.distance).max() < 1e-9  # exact: distance to Reg ⊕ K
+
+
+@pytest.mark.parametrize("name", REGIONS)
+def test_union_matches_shapely(name, regions, geometries, params):
+    region = regions[name].polygon
+    xy = random_configs(region, np.random.default_rng(2))
+    geo = geometries[name]
+    exact = union_area_exact(region, xy, params.coverage.radius, params.coverage.edges)
+    fast = geo.union_area(xy, geo.cover_terms(xy).area)
+    assert np.abs(fast - exact).max() < 0.005 * region.area  # SPEC §4: within 0.5 % of A(Reg)
+
+
+@pytest.mark.parametrize("name", REGIONS)
+def test_marginal_contribution_matches_shapely(name, regions, geometries, params):
+    """A(∪_b Cov(b) ∩ Reg) − A(∪_{b≠a} Cov(b) ∩ Reg), the difference reward, per agent."""
+    region = regions[name].polygon
+    c = params.coverage
+    xy = random_configs(region, np.random.default_rng(3), n_env=20)
+    geo = geometries[name]
+    union, marginal = geo.union_area(xy, geo.cover_terms(xy).area, marginal=True)
+    full = union_area_exact(region, xy, c.radius, c.edges)
+    for a in range(xy.shape[1]):
+        without = union_area_exact(region, np.delete(xy, a, axis=1), c.radius, c.edges)
+        assert np.abs(marginal[:, a] - (full - without)).max() < 0.005 * region.area
+    assert np.abs(union - full).max() < 0.005 * region.area
+
+
+def test_union_is_exact_without_overlaps(regions, geometries, params):
+    """No two coverage polygons overlap → the union is the sum of the per-agent terms, no raster involved."""
+    xy = np.array([[[x, y] for x in (-1.0, 0.0, 1.0) for y in (-1.0, 0.0, 1.0)]])  # the 3 × 3 grid
+    geo = geometries["square"]
+    exact = union_area_exact(regions["square"].polygon, xy, params.coverage.radius, params.coverage.edges)
+    terms = geo.cover_terms(xy)
+    assert geo.union_area(xy, terms.area)[0] == terms.area.sum()
+    assert geo.union_area(xy, terms.area)[0] == pytest.approx(exact[0], abs=9 * 1e-3)
+    assert exact[0] / 9.0 == pytest.approx(0.780, abs=5e-4)  # SPEC §7: the grid reaches the ceiling
+
+
+def test_minkowski_erosion_and_dilation_are_exact(regions):
+    region = regions["bedok"].polygon
+    offsets = polygon_offsets(0.5, 30)
+    eroded, dilated = minkowski(region, offsets)
+    rng = np.random.default_rng(4)
+    minx, miny, maxx, maxy = dilated.bounds
+    pts = rng.uniform((minx, miny), (maxx, maxy), (3000, 2))
+    cov = shapely.polygons(pts[:, None, :] + offsets)
+    np.testing.assert_array_equal(shapely.contains_xy(eroded, pts[:, 0], pts[:, 1]), shapely.within(cov, region))
+    np.testing.assert_array_equal(shapely.contains_xy(dilated, pts[:, 0], pts[:, 1]), shapely.intersects(cov, region))

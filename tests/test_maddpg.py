@@ -1,0 +1,101 @@
+"""The batched MADDPG is the same algorithm as N separate learners (openai/maddpg structure)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from replicate.maddpg import MADDPG, BatchedMLP, ReplayBuffer, soft_update
+from replicate.maddpg_loop import LoopMADDPG
+
+
+def filled_buffer(n, od, rng, size=2000):
+    buf = ReplayBuffer(size, n, od, 2)
+    for _ in range(size // 100):
+        buf.add(
+            rng.normal(size=(100, n, od)).astype(np.float32),
+            rng.uniform(-1, 1, (100, n, 2)).astype(np.float32),
+            rng.normal(size=(100, n)).astype(np.float32),
+            rng.normal(size=(100, n, od)).astype(np.float32),
+        )
+    return buf
+
+
+def test_batched_mlp_equals_separate_networks():
+    g = torch.Generator().manual_seed(0)
+    net = BatchedMLP(4, [3, 8, 8, 2], g)
+    x = torch.randn(4, 5, 3)
+    out = net(x)
+    for i in range(4):
+        h = x[i]
+        for k, (w, b) in enumerate(zip(net.weights, net.biases)):
+            h = h @ w[i] + b[i, 0]
+            if k < 2:
+                h = torch.relu(h)
+        torch.testing.assert_close(out[i], h)
+
+
+@pytest.mark.parametrize("mode", ["individual", "shared"])
+def test_batched_update_equals_per_agent_loop(params, mode):
+    cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=64, actor_lr=1e-3, critic_lr=1e-3)
+    n, od = 4, 4
+    batched = MADDPG(n, od, 2, cfg, mode, seed=3)
+    loop = LoopMADDPG(batched)
+    rng = np.random.default_rng(0)
+    buf = filled_buffer(n, od, rng)
+    for _ in range(3):
+        batch = buf.sample(rng, cfg.batch_size)
+        batched.update(batch)
+        loop.update(batch)
+    for i in range(n):
+        for k, (w, b) in enumerate(zip(batched.critic.weights, batched.critic.biases)):
+            torch.testing.assert_close(w[i].T, loop.critics[i][2 * k].weight, rtol=1e-4, atol=1e-5)
+            torch.testing.assert_close(b[i, 0], loop.critics[i][2 * k].bias, rtol=1e-4, atol=1e-5)
+        for k, w in enumerate(batched.actor.weights):
+            torch.testing.assert_close(w[i].T, loop.actors[i][2 * k].weight, rtol=1e-4, atol=1e-5)
+        for k, w in enumerate(batched.actor_target.weights):
+            torch.testing.assert_close(w[i].T, loop.actor_targets[i][2 * k].weight, rtol=1e-4, atol=1e-5)
+
+
+def test_gradient_clip_and_soft_update(params):
+    cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=32)
+    agent = MADDPG(3, 2, 2, cfg, "individual", seed=0)
+    before = [p.detach().clone() for p in agent.critic_target.parameters()]
+    agent.update(filled_buffer(3, 2, np.random.default_rng(1)).sample(np.random.default_rng(2), 32))
+    for b, t, p in zip(before, agent.critic_target.parameters(), agent.critic.parameters()):
+        # θ' ← τθ + (1 − τ)θ', with θ already updated
+        torch.testing.assert_close(t.detach(), 0.99 * b + 0.01 * p.detach())
+    a = BatchedMLP(2, [2, 4, 1], torch.Generator().manual_seed(0))
+    b = BatchedMLP(2, [2, 4, 1], torch.Generator().manual_seed(1))
+    soft_update(a, b, 1.0)
+    for p, q in zip(a.parameters(), b.parameters()):
+        torch.testing.assert_close(p, q)
+
+
+def test_individual_and_shared_rewards_differ(params):
+    cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=32)
+    rng = np.random.default_rng(0)
+    buf = filled_buffer(3, 2, rng)
+    batch = buf.sample(rng, 32)
+    ind, sha = MADDPG(3, 2, 2, cfg, "individual", 0), MADDPG(3, 2, 2, cfg, "shared", 0)
+    ind.update(batch)
+    sha.update(batch)
+    assert not torch.allclose(ind.critic.weights[0], sha.critic.weights[0])
+    with pytest.raises(ValueError, match="reward_mode"):
+        MADDPG(3, 2, 2, cfg, "team", 0)
+
+
+def test_replay_buffer_wraps_and_round_trips():
+    buf = ReplayBuffer(5, 2, 2, 2)
+    for k in range(3):
+        buf.add(np.full((2, 2, 2), k, np.float32), np.zeros((2, 2, 2), np.float32), np.full((2, 2), k, np.float32),
+                np.zeros((2, 2, 2), np.float32))
+    assert buf.size == 5 and buf.ptr == 1
+    assert buf.rew[:, 0].tolist() == [2, 0, 1, 1, 2]  # the third batch wrapped onto slot 0
+    other = ReplayBuffer(5, 2, 2, 2)
+    other.load_state_dict(buf.state_dict())
+    np.testing.assert_array_equal(other.rew, buf.rew)
+    assert (other.ptr, other.size) == (buf.ptr, buf.size)
