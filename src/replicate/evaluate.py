@@ -23,13 +23,15 @@ BASELINES = ("random", "naive", "lloyd", "lloyd_converged")
 
 
 def rollout(env: CoverageEnv, policy, steps: int, seed: int) -> dict:
-    """Run ``policy`` for ``steps`` from a reset with ``seed``; positions at every step [steps + 1, E, N, 2]."""
+    """Run ``policy`` for ``steps`` from a reset with ``seed``: positions at every step [steps + 1, E, N, 2] and
+    each agent's return under the environment's reward [E, N] (zeros when it has none)."""
     env.reset(seed)
     trace = [env.pos.copy()]
+    returns = np.zeros((env.n_envs, env.n_agents))
     for _ in range(steps):
-        env.integrate(policy(env))
+        returns += env.step(policy(env)).reward
         trace.append(env.pos.copy())
-    return {"positions": np.stack(trace)}
+    return {"positions": np.stack(trace), "returns": returns}
 
 
 def summarise(region: Region, xy: np.ndarray, radius: float, edges: int) -> dict:
@@ -78,7 +80,9 @@ def evaluate_run(run_dir: str | Path, params: Params, region: Region) -> dict:
     pos = rollout(env, actor_policy(net, meta["observation"]), rc.world.episode_length, ev.seed)["positions"]
     out = summarise(region, pos[-1], rc.coverage.radius, rc.coverage.edges)
     curve = read_curve(run_dir / "curve.csv")
-    conv = metrics.convergence_episode(curve["team_reward"], ev.converge_window, ev.converge_tolerance, ev.converge_final)
+    conv = metrics.convergence_episode(
+        curve["team_reward"], ev.converge_window, ev.converge_tolerance, ev.converge_final
+    )
     run = json.loads((run_dir / "run.json").read_text())
     out.update(
         kind="run",

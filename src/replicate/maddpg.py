@@ -68,7 +68,7 @@ class ReplayBuffer:
         self.ptr = int((self.ptr + len(obs)) % self.capacity)
         self.size = min(self.size + len(obs), self.capacity)
 
-    def sample(self, rng: np.random.Generator, batch: int) -> "Batch":
+    def sample(self, rng: np.random.Generator, batch: int) -> Batch:
         """One minibatch of joint transitions for all agents (openai/maddpg draws one per agent; see
         docs/DEVIATIONS.md). → tensors with leading [B]."""
         idx = rng.integers(0, self.size, size=batch)

@@ -11,7 +11,7 @@ import numpy as np
 from scipy import stats
 from shapely.geometry import Polygon
 
-from .geometry import coverage_fraction_exact, cover_terms_exact
+from .geometry import cover_terms_exact, coverage_fraction_exact
 
 
 def coverage_fraction(region: Polygon, xy: np.ndarray, radius: float, edges: int) -> np.ndarray:

@@ -87,6 +87,8 @@ class Trainer:
         self.transitions = 0
         self.pending_updates = 0.0
         self.wall = 0.0
+        self.update_seconds = 0.0  # time spent in MADDPG updates (the rest is environment, geometry, acting)
+        self.updates = 0
 
     # ---- identity of a run, checked on resume ----------------------------------------------------------
     def identity(self) -> dict:
@@ -126,11 +128,14 @@ class Trainer:
                 self.transitions += n_env
                 if self.buffer.size >= cfg.learning_starts:
                     self.pending_updates += n_env / cfg.update_every
+                    tu = time.perf_counter()
                     while self.pending_updates >= 1.0:
                         self.pending_updates -= 1.0
                         stats = self.agent.update(self.buffer.sample(self.sample_rng, cfg.batch_size))
                         diag["critic_loss"].append(stats["critic_loss"])
                         diag["q_abs"].append(stats["q_abs"])
+                        self.updates += 1
+                    self.update_seconds += time.perf_counter() - tu
             coverage = self.env.coverage_fraction()
             loss = float(np.mean(diag["critic_loss"])) if diag["critic_loss"] else math.nan
             q_abs = float(np.mean(diag["q_abs"])) if diag["q_abs"] else math.nan
@@ -154,6 +159,8 @@ class Trainer:
             **self.identity(),
             "status": "finished",
             "wall_seconds": round(self.wall, 2),
+            "update_seconds": round(self.update_seconds, 2),
+            "updates": self.updates,
             "transitions": self.transitions,
             "final_coverage_last100": float(np.mean([r[n + 2] for r in self.rows[-100:]])),
         }

@@ -1,0 +1,38 @@
+# Two commands on a fresh machine: `make repro` (set up + run the pipeline) and `make test`.
+# Both (re)create .venv from environment.lock when it is missing or older than the lock.
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed-from-lock
+export DVC_NO_ANALYTICS := 1
+export PYTHONHASHSEED := 0
+
+.PHONY: setup test repro bench reference lint clean-venv
+
+$(STAMP): environment.lock pyproject.toml
+	rm -rf $(VENV)
+	python3 -m venv $(VENV)
+	$(PY) -m pip install --quiet --disable-pip-version-check -r environment.lock
+	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
+	$(PY) -m ipykernel install --sys-prefix --name python3 >/dev/null
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+test: $(STAMP)
+	$(VENV)/bin/pytest
+
+repro: $(STAMP)
+	$(VENV)/bin/dvc repro
+
+bench: $(STAMP)
+	$(PY) benchmarks/bench.py
+
+# Regenerate the reduced-episode regression references on purpose (after a change meant to alter curves).
+reference: $(STAMP)
+	$(PY) -m replicate.regression --write tests/reference
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check src tests benchmarks
+
+clean-venv:
+	rm -rf $(VENV)

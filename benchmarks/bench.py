@@ -1,0 +1,145 @@
+"""`make bench`: speed figures, each measured in this one run against a reference run beside it.
+
+1. Time per 1,000 episodes of the paper configuration (CR-MARL and SW-MARL, square), split into environment +
+   geometry + acting and MADDPG updates, and the projected wall time of a full 10,000-episode run.
+2. One update of all 9 agents: the batched MADDPG against the per-agent loop (``maddpg_loop``), as a ratio.
+3. Environment throughput (agent-steps per second, random actions) against PettingZoo MPE2 ``simple_spread_v3``
+   with N = 9 and continuous actions, as a ratio.
+
+Everything runs on one thread (``torch.set_num_threads(1)``), the budget of one core of the 2-core machine.
+``--full`` also trains the real 10,000-episode paper CR run on the square and prints its wall time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from replicate.config import load_params, run_config
+from replicate.env import CoverageEnv
+from replicate.maddpg import MADDPG, ReplayBuffer
+from replicate.maddpg_loop import LoopMADDPG
+from replicate.regions import make_region
+from replicate.train import Trainer
+
+torch.set_num_threads(1)
+
+
+def best_of(fn, repeats=5):
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def training_split(params, square, method: str, episodes: int):
+    """(env seconds per 1,000 episodes, seconds per update, projected 10k wall) from a short real run."""
+    rc = run_config(params, "paper", method)
+    with tempfile.TemporaryDirectory() as tmp:
+        tr = Trainer(rc, square, episodes, 0, Path(tmp) / "run", checkpoint_every=episodes, progress=False)
+        tr.run()
+    env_s = (tr.wall - tr.update_seconds) / episodes * 1000
+    per_update = tr.update_seconds / max(tr.updates, 1)
+    cfg = rc.algo.maddpg
+    total = params.train.episodes * rc.world.episode_length
+    full_updates = (total - cfg.learning_starts) / cfg.update_every
+    steady_updates_per_1000 = 1000 * rc.world.episode_length / cfg.update_every
+    full = env_s * params.train.episodes / 1000 + full_updates * per_update
+    return env_s, per_update, steady_updates_per_1000 * per_update, full
+
+
+def update_ratio(params):
+    cfg = params.configs["paper"].maddpg
+    rng = np.random.default_rng(0)
+    buf = ReplayBuffer(50_000, 9, 2, 2)
+    for _ in range(50):
+        buf.add(rng.normal(size=(1000, 9, 2)).astype(np.float32), rng.uniform(-1, 1, (1000, 9, 2)).astype(np.float32),
+                rng.normal(size=(1000, 9)).astype(np.float32), rng.normal(size=(1000, 9, 2)).astype(np.float32))
+    batched = MADDPG(9, 2, 2, cfg, "individual", seed=0)
+    loop = LoopMADDPG(batched)
+    batch = buf.sample(rng, cfg.batch_size)
+    batched.update(batch), loop.update(batch)
+    tb = best_of(lambda: [batched.update(batch) for _ in range(5)]) / 5
+    tl = best_of(lambda: [loop.update(batch) for _ in range(5)]) / 5
+    return tb, tl
+
+
+def env_throughput(params, square, n_envs: int, seconds=3.0):
+    env = CoverageEnv(square, params.world, params.coverage, n_envs=n_envs, reward="cr", cr=params.cr_reward, seed=0)
+    rng = np.random.default_rng(0)
+    steps = 0
+    env.reset()
+    t = time.perf_counter()
+    while time.perf_counter() - t < seconds:
+        env.step(rng.uniform(-1, 1, (n_envs, 9, 2)))
+        steps += 1
+        if env.t >= params.world.episode_length:
+            env.reset()
+    return steps * n_envs * 9 / (time.perf_counter() - t)
+
+
+def mpe2_throughput(seconds=3.0):
+    from mpe2 import simple_spread_v3
+
+    env = simple_spread_v3.parallel_env(N=9, continuous_actions=True, max_cycles=50)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    agents = list(env.agents)
+    steps = 0
+    t = time.perf_counter()
+    while time.perf_counter() - t < seconds:
+        actions = {a: rng.uniform(0, 1, 5).astype(np.float32) for a in agents}
+        _, _, term, trunc, _ = env.step(actions)
+        steps += 1
+        if any(trunc.values()) or any(term.values()) or not env.agents:
+            env.reset()
+    return steps * 9 / (time.perf_counter() - t)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--episodes", type=int, default=1000, help="episodes of the timed training runs")
+    parser.add_argument("--full", action="store_true", help="also train the full 10,000-episode CR run")
+    args = parser.parse_args(argv)
+    params = load_params("params.yaml")
+    square = make_region("square", params.regions["square"], params.world.region_area)
+
+    print("== 1. training time, paper config, square (one thread) ==")
+    for method in ("cr", "sw"):
+        env_s, per_update, upd_1000, full = training_split(params, square, method, args.episodes)
+        print(f"{method.upper()}-MARL: per 1,000 episodes: environment+geometry+acting {env_s:6.1f} s, "
+              f"updates {upd_1000:6.1f} s ({per_update * 1e3:.1f} ms per update of 9 agents); "
+              f"projected 10,000-episode run {full:6.1f} s (target 90 s)")
+
+    print("== 2. one MADDPG update of 9 agents, batch 1024 ==")
+    tb, tl = update_ratio(params)
+    print(f"batched {tb * 1e3:.1f} ms, per-agent loop {tl * 1e3:.1f} ms: batched is {tl / tb:.2f}x faster")
+
+    print("== 3. environment throughput, random actions, agent-steps per second ==")
+    ref = mpe2_throughput()
+    for n_envs in (1, params.configs["paper"].n_envs):
+        ours = env_throughput(params, square, n_envs)
+        print(f"coverage env (CR reward, E={n_envs:3d}): {ours:10.0f}; MPE2 simple_spread_v3 (N=9, continuous): "
+              f"{ref:10.0f}; ratio {ours / ref:.2f}")
+
+    if args.full:
+        print("== full run: paper CR-MARL, square, 10,000 episodes ==")
+        rc = run_config(params, "paper", "cr")
+        with tempfile.TemporaryDirectory() as tmp:
+            tr = Trainer(rc, square, params.train.episodes, 0, Path(tmp) / "run", progress=False)
+            summary = tr.run()
+        print(f"wall {summary['wall_seconds']:.1f} s (updates {summary['update_seconds']:.1f} s, "
+              f"{summary['updates']} updates)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
