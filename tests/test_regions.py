@@ -125,6 +125,7 @@ def test_bad_files_are_refused(tmp_path):
 def test_file_without_crs_is_refused(tmp_path):
     import geopandas as gpd
 
-    gpd.GeoDataFrame(geometry=[box(0, 0, 10, 10)]).to_file(tmp_path / "nocrs.shp")
+    with pytest.warns(UserWarning, match="crs"):
+        gpd.GeoDataFrame(geometry=[box(0, 0, 10, 10)]).to_file(tmp_path / "nocrs.shp")
     with pytest.raises(RegionError, match="no CRS"):
         region_from_file(tmp_path / "nocrs.shp")

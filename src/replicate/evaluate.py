@@ -34,8 +34,10 @@ def rollout(env: CoverageEnv, policy, steps: int, seed: int) -> dict:
     return {"positions": np.stack(trace), "returns": returns}
 
 
-def summarise(region: Region, xy: np.ndarray, radius: float, edges: int) -> dict:
-    """SPEC §8 metrics of final positions xy [E, N, 2]: per-episode values and their mean with 95 % CI."""
+def summarise(region: Region, trace: np.ndarray, radius: float, edges: int) -> dict:
+    """SPEC §8 metrics of the last step of a rollout ``trace`` [T + 1, E, N, 2]: per-episode values, their mean
+    with a 95 % CI, and the first episode's trajectory as an example for the figures."""
+    xy = trace[-1]
     cov = metrics.coverage_fraction(region.polygon, xy, radius, edges)
     nn = metrics.mean_nearest_neighbour(xy)
     inside = metrics.fraction_inside(region.polygon, xy, radius, edges)
@@ -44,6 +46,7 @@ def summarise(region: Region, xy: np.ndarray, radius: float, edges: int) -> dict
         "nearest_neighbour": metrics.mean_ci(nn),
         "fraction_inside": metrics.mean_ci(inside),
         "per_episode": {"coverage": cov.round(6).tolist()},
+        "example": {"final_positions": xy[0].round(5).tolist(), "trajectory": trace[:, 0].round(4).tolist()},
     }
 
 
@@ -78,7 +81,7 @@ def evaluate_run(run_dir: str | Path, params: Params, region: Region) -> dict:
     if meta["observation"] != rc.algo.observation:
         raise ConfigError(f"{run_dir}: actors observe {meta['observation']!r}, params say {rc.algo.observation!r}")
     pos = rollout(env, actor_policy(net, meta["observation"]), rc.world.episode_length, ev.seed)["positions"]
-    out = summarise(region, pos[-1], rc.coverage.radius, rc.coverage.edges)
+    out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
     curve = read_curve(run_dir / "curve.csv")
     conv = metrics.convergence_episode(
         curve["team_reward"], ev.converge_window, ev.converge_tolerance, ev.converge_final
@@ -126,7 +129,7 @@ def evaluate_baseline(name: str, params: Params, region: Region, config: str = "
         if name == "lloyd_converged":
             steps = ev.lloyd.converged_steps
     pos = rollout(env, policy, steps, ev.seed)["positions"]
-    out = summarise(region, pos[-1], rc.coverage.radius, rc.coverage.edges)
+    out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
     out.update(kind="baseline", baseline=name, region=region.name, steps=steps, config=config)
     out["ceiling"] = metrics.coverage_ceiling(region.area, rc.world.n_agents, rc.coverage.radius, rc.coverage.edges)
     return out

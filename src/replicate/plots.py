@@ -1,0 +1,200 @@
+"""The paper's figures (SPEC §9), one PNG per panel, drawn from the package's own geometry and run outputs.
+
+Every function takes data (regions, positions, curves, metrics) and a path, writes the PNG atomically and
+returns the path. Nothing here computes a metric: values come from ``metrics``/``evaluate``.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import shapely  # noqa: E402
+from shapely.geometry import Polygon  # noqa: E402
+
+from . import artifacts  # noqa: E402
+from .geometry import cover_terms_exact, coverage_polygons  # noqa: E402
+from .metrics import moving_average  # noqa: E402
+
+AGENT_COLOURS = plt.get_cmap("tab10").colors
+
+
+def save(fig, path: str | Path) -> Path:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    artifacts.atomic_write_bytes(path, buf.getvalue())
+    return Path(path)
+
+
+def draw_polygon(ax, poly, **kw):
+    for part in getattr(poly, "geoms", [poly]):
+        if part.is_empty or part.geom_type != "Polygon":
+            continue
+        x, y = part.exterior.xy
+        ax.fill(x, y, **kw)
+
+
+def draw_region(ax, region: Polygon, patch: Polygon | None = None):
+    draw_polygon(ax, region, facecolor="#d6ecfa", edgecolor="#1f4e79", linewidth=1.5, label="region")
+    if patch is not None:
+        draw_polygon(ax, patch, facecolor="none", edgecolor="k", linestyle="--", linewidth=1, label="start patch")
+    ax.set_aspect("equal")
+
+
+def three_cases(region: Polygon, radius: float, edges: int, path) -> Path:
+    """Agent vs region, eq. (5)'s three cases: inside, partially overlapping, fully outside."""
+    minx, miny, maxx, maxy = region.bounds
+    cx = (minx + maxx) / 2
+    xy = np.array([[[cx - 0.5, (miny + maxy) / 2], [maxx, miny + 0.3 * (maxy - miny)], [maxx + 1.2, maxy - 0.6]]])
+    terms = cover_terms_exact(region, xy, radius, edges)
+    cov = coverage_polygons(xy[0], radius, edges)
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    draw_region(ax, region)
+    labels = ["(1) inside", "(2) partially overlapping", "(3) fully outside"]
+    for k in range(3):
+        draw_polygon(ax, cov[k], facecolor=AGENT_COLOURS[k], alpha=0.45, edgecolor=AGENT_COLOURS[k])
+        text = f"{labels[k]}\nA = {terms.area[0, k]:.3f} m²"
+        if terms.disjoint[0, k]:
+            text += f"\ndist = {terms.distance[0, k]:.2f} m"
+        ax.plot(*xy[0, k], "o", color="k", ms=3)
+        ax.annotate(text, xy[0, k], xytext=(0, 42), textcoords="offset points", ha="center", fontsize=8)
+    ax.set_title("Agent coverage polygon vs region (eq. 5)")
+    ax.set_xlim(minx - 0.5, maxx + 2.0)
+    ax.set_ylim(miny - 0.7, maxy + 1.0)
+    return save(fig, path)
+
+
+def overall_coverage(region: Polygon, xy: np.ndarray, radius: float, edges: int, path, title: str) -> Path:
+    """The union of coverage polygons with overlaps merged, clipped to the region (eq. 6). xy [N, 2]."""
+    cov = coverage_polygons(xy, radius, edges)
+    union = shapely.intersection(shapely.union_all(cov), region)
+    fig, ax = plt.subplots(figsize=(6, 6 * (region.bounds[3] - region.bounds[1] + 2) / (region.bounds[2] - region.bounds[0] + 2)))
+    draw_region(ax, region)
+    draw_polygon(ax, union, facecolor="#f4a261", alpha=0.7, edgecolor="#9c4a00", linewidth=1.2)
+    for k, c in enumerate(cov):
+        x, y = c.exterior.xy
+        ax.plot(x, y, color="k", linewidth=0.5, alpha=0.6)
+    ax.plot(xy[:, 0], xy[:, 1], "k.", ms=4)
+    ax.set_title(f"{title}\nmerged coverage ∩ region = {union.area:.2f} m² ({union.area / region.area:.0%})")
+    return save(fig, path)
+
+
+def spread(region: Polygon, patch: Polygon, xy: np.ndarray, radius: float, edges: int, path, title: str,
+           trails: np.ndarray | None = None, note: str = "") -> Path:
+    """Qualitative performance: region, start patch, final positions with coverage polygons (and trails)."""
+    minx, miny, maxx, maxy = region.bounds
+    w, h = maxx - minx + 2, maxy - miny + 2
+    fig, ax = plt.subplots(figsize=(min(10, 1.2 * w + 2), min(7, 1.2 * h + 2)))
+    draw_region(ax, region, patch)
+    if trails is not None:
+        for k in range(trails.shape[1]):
+            ax.plot(trails[:, k, 0], trails[:, k, 1], color=AGENT_COLOURS[k % 10], linewidth=0.8, alpha=0.6)
+    for k, c in enumerate(coverage_polygons(xy, radius, edges)):
+        draw_polygon(ax, c, facecolor=AGENT_COLOURS[k % 10], alpha=0.35, edgecolor=AGENT_COLOURS[k % 10])
+    ax.plot(xy[:, 0], xy[:, 1], "k.", ms=5)
+    lo = np.minimum(xy.min(axis=0) - radius, (minx - 0.5, miny - 0.5))
+    hi = np.maximum(xy.max(axis=0) + radius, (maxx + 0.5, maxy + 0.5))
+    lo, hi = np.maximum(lo, (minx - 6, miny - 6)), np.minimum(hi, (maxx + 6, maxy + 6))
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_title(title + (f"\n{note}" if note else ""), fontsize=10)
+    ax.legend(loc="upper right", fontsize=7)
+    return save(fig, path)
+
+
+def reward_curves(curves: list[dict], method: str, path, title: str, window: int = 200) -> Path:
+    """SW: the shared (average agent) reward, mean over seeds with a min-max band; CR: the nine agents' own
+    reward curves of the first seed (moving average over ``window`` episodes)."""
+    fig, ax = plt.subplots(figsize=(8, 3.8))
+    if method == "cr":
+        c = curves[0]
+        n = sum(1 for k in c if k.startswith("reward_"))
+        for i in range(n):
+            ma = moving_average(c[f"reward_{i}"], window)
+            ax.plot(np.arange(len(ma)) + window - 1, ma, color=AGENT_COLOURS[i % 10], linewidth=1, label=f"agent {i}")
+        ax.legend(ncol=5, fontsize=7)
+        ax.set_ylabel("episode reward of each agent")
+    else:
+        mas = [moving_average(c["team_reward"], window) for c in curves]
+        length = min(len(m) for m in mas)
+        stack = np.stack([m[:length] for m in mas])
+        x = np.arange(length) + window - 1
+        ax.plot(x, stack.mean(axis=0), color="C0", label=f"mean of {len(curves)} seed(s)")
+        if len(curves) > 1:
+            ax.fill_between(x, stack.min(axis=0), stack.max(axis=0), color="C0", alpha=0.25, label="seed range")
+        ax.legend(fontsize=8)
+        ax.set_ylabel("average agent reward (shared)")
+    ax.set_xlabel("episode")
+    ax.set_title(title + f" ({window}-episode moving average)", fontsize=10)
+    return save(fig, path)
+
+
+def coverage_vs_episode(curves_by_method: dict[str, list[dict]], baselines: dict[str, float], ceiling: float,
+                        path, title: str, window: int = 200) -> Path:
+    """Training coverage vs episode for every method (mean over seeds, min-max band), with the baselines'
+    evaluation coverage and the ceiling as horizontal lines."""
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for k, (label, curves) in enumerate(curves_by_method.items()):
+        mas = [moving_average(c["coverage"], window) for c in curves]
+        length = min(len(m) for m in mas)
+        if length == 0:
+            continue
+        stack = np.stack([m[:length] for m in mas])
+        x = np.arange(length) + window - 1
+        ax.plot(x, stack.mean(axis=0), color=f"C{k}", label=f"{label} ({len(curves)} seeds)")
+        ax.fill_between(x, stack.min(axis=0), stack.max(axis=0), color=f"C{k}", alpha=0.2)
+    styles = {"random": ":", "naive": "--", "lloyd": "-.", "lloyd_converged": "-"}
+    for name, value in baselines.items():
+        ax.axhline(value, color="grey", linestyle=styles.get(name, ":"), linewidth=1, label=f"{name} {value:.2f}")
+    ax.axhline(ceiling, color="k", linewidth=0.8, label=f"ceiling {ceiling:.3f}")
+    ax.set_ylim(0, 1)
+    ax.set_xlabel("episode")
+    ax.set_ylabel("coverage fraction at the last step")
+    ax.set_title(title + f" ({window}-episode moving average)", fontsize=10)
+    ax.legend(fontsize=7, ncol=2, loc="upper left")
+    return save(fig, path)
+
+
+def diagnostics(curve: dict, path, title: str, window: int = 100) -> Path:
+    """Learning diagnostics per episode: critic loss, mean |Q|, saturated actions, exploration σ, coverage."""
+    keys = [("critic_loss", "critic loss"), ("q_abs", "mean |Q|"), ("saturated", "fraction |a| > 0.99"),
+            ("noise", "exploration σ"), ("coverage", "coverage")]
+    fig, axes = plt.subplots(len(keys), 1, figsize=(8, 9), sharex=True)
+    for ax, (key, label) in zip(axes, keys):
+        y = np.asarray(curve[key], dtype=float)
+        ax.plot(curve["episode"], y, color="0.7", linewidth=0.5)
+        ok = ~np.isnan(y)
+        if ok.sum() >= window:
+            ma = moving_average(y[ok], window)
+            ax.plot(np.asarray(curve["episode"])[ok][window - 1:], ma, color="C3", linewidth=1)
+        ax.set_ylabel(label, fontsize=8)
+        if key == "critic_loss" and np.nanmax(y, initial=0) > 0:
+            ax.set_yscale("log")
+    axes[-1].set_xlabel("episode")
+    axes[0].set_title(title, fontsize=10)
+    return save(fig, path)
+
+
+def bedok_map(lonlat: Polygon, utm: Polygon, utm_crs: str, source: str, attribution: str, path) -> Path:
+    """Bedok Reservoir in lon/lat and in UTM, side by side, with the outline's source and attribution."""
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.5))
+    draw_polygon(a, lonlat, facecolor="#9ecae1", edgecolor="#08519c")
+    a.set_xlabel("longitude (°E)")
+    a.set_ylabel("latitude (°N)")
+    a.set_title("lon/lat (EPSG:4326)")
+    a.set_aspect(1 / np.cos(np.radians(lonlat.centroid.y)))
+    draw_polygon(b, utm, facecolor="#9ecae1", edgecolor="#08519c")
+    b.set_xlabel("easting (m)")
+    b.set_ylabel("northing (m)")
+    b.set_title(f"UTM ({utm_crs}), area {utm.area / 1e6:.3f} km²")
+    b.set_aspect("equal")
+    b.ticklabel_format(useOffset=False, style="plain")
+    fig.suptitle(f"Bedok Reservoir — outline source: {source}", fontsize=11)
+    fig.text(0.5, -0.02, attribution, ha="center", fontsize=7, wrap=True)
+    return save(fig, path)
