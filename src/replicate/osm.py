@@ -106,6 +106,16 @@ def outline_from_osm_xml(path: str | Path, name: str, tags: dict | None = None) 
     return pick_feature(gdf, name, str(path))
 
 
+def use_endpoints(nominatim_url: str = "", overpass_url: str = "") -> None:
+    """Point osmnx at other Nominatim / Overpass endpoints (a mirror); empty strings keep osmnx's defaults."""
+    import osmnx as ox
+
+    if nominatim_url:
+        ox.settings.nominatim_url = nominatim_url
+    if overpass_url:
+        ox.settings.overpass_url = overpass_url
+
+
 def query_osm(place: str, name: str, tags: dict, timeout: float) -> Outline:
     """Ask OSM (Nominatim + Overpass through osmnx) for the water polygon ``name`` in ``place``."""
     import osmnx as ox

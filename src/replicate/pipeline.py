@@ -82,6 +82,9 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
     jobs = []
     for run in sorted(p for p in Path(runs_dir).iterdir() if (p / "actors.pt").exists()):
         ident = json.loads((run / "run.json").read_text())
+        curve = read_curve(run / "curve.csv")
+        artifacts.write_csv(metrics_dir / "curves" / f"{run.name}.csv", ["episode", "team_reward", "coverage"],
+                            zip(curve["episode"].astype(int), curve["team_reward"], curve["coverage"]))
         jobs.append({"params": params_path, "run": str(run), "region": ident["region"],
                      "out": str(metrics_dir / "runs" / f"{run.name}.json")})
     for region in regions:
