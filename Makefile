@@ -5,6 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-from-lock
 export DVC_NO_ANALYTICS := 1
 export PYTHONHASHSEED := 0
+export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)   # papermill and dvc of the venv, for the pipeline's stages
 
 .PHONY: setup test repro bench reference lint clean-venv
 

@@ -48,7 +48,7 @@ def test_every_spec_figure_has_a_stage_output():
     stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
     outs = [next(iter(o)) if isinstance(o, dict) else o for o in stages["figures"]["outs"]]
     assert "figures" in outs
-    source = (ROOT / "src" / "replicate" / "pipeline.py").read_text()
+    source = (ROOT / "src" / "replicate" / "figures.py").read_text()
     for name in ONCE + ["fig_{tag}_reward", "fig_{tag}_spread", "fig_{config}_coverage_{region_name}"]:
         assert name in source, f"no figure code writes {name}"
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
@@ -89,7 +89,8 @@ def test_dvc_repro_end_to_end(tmp_path):
     params["fetch_outline"]["timeout"] = 2
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     subprocess.run(["git", "init", "-q"], cwd=repo, check=True)
-    env = {**os.environ, "DVC_NO_ANALYTICS": "1", "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    path = f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"
+    env = {**os.environ, "DVC_NO_ANALYTICS": "1", "PATH": path}
     proc = subprocess.run(["dvc", "repro"], cwd=repo, env=env, capture_output=True, text=True, timeout=1500)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
 

@@ -8,15 +8,16 @@ from __future__ import annotations
 
 import csv
 import json
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from . import baselines, metrics
-from .config import ConfigError, Params, RunConfig, run_config
+from . import artifacts, baselines, metrics
+from .config import ConfigError, Params, RunConfig, load_params, run_config
 from .env import CoverageEnv
-from .regions import Region
+from .regions import Region, make_region
 from .train import load_actors
 
 BASELINES = ("random", "naive", "lloyd", "lloyd_converged")
@@ -133,3 +134,69 @@ def evaluate_baseline(name: str, params: Params, region: Region, config: str = "
     out.update(kind="baseline", baseline=name, region=region.name, steps=steps, config=config)
     out["ceiling"] = metrics.coverage_ceiling(region.area, rc.world.n_agents, rc.coverage.radius, rc.coverage.edges)
     return out
+
+
+# ---- the pipeline's evaluate stage ---------------------------------------------------------------------
+def _evaluate_one(job: dict) -> tuple[str, dict]:
+    import torch
+
+    torch.set_num_threads(1)
+    params = load_params(job["params"])
+    region = make_region(job["region"], params.regions[job["region"]], params.world.region_area)
+    if "run" in job:
+        result = evaluate_run(job["run"], params, region)
+    else:
+        result = evaluate_baseline(job["baseline"], params, region)
+    artifacts.write_json(job["out"], result)
+    return job["out"], result
+
+
+def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, workers: int) -> dict:
+    """SPEC §8 metrics of every run in ``runs_dir`` and of every baseline on every region; a summary table."""
+    metrics_dir = Path(metrics_dir)
+    jobs = []
+    for run in sorted(p for p in Path(runs_dir).iterdir() if (p / "actors.pt").exists()):
+        ident = json.loads((run / "run.json").read_text())
+        curve = read_curve(run / "curve.csv")
+        artifacts.write_csv(metrics_dir / "curves" / f"{run.name}.csv", ["episode", "team_reward", "coverage"],
+                            zip(curve["episode"].astype(int), curve["team_reward"], curve["coverage"]))
+        jobs.append({"params": params_path, "run": str(run), "region": ident["region"],
+                     "out": str(metrics_dir / "runs" / f"{run.name}.json")})
+    for region in regions:
+        for name in BASELINES:
+            jobs.append({"params": params_path, "baseline": name, "region": region,
+                         "out": str(metrics_dir / "baselines" / f"{name}-{region}.json")})
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        results = dict(pool.map(_evaluate_one, jobs))
+    summary = summarise_metrics(results.values())
+    artifacts.write_json(metrics_dir / "summary.json", summary)
+    return summary
+
+
+def summarise_metrics(results) -> dict:
+    """Coverage table: per config × method × region the mean over seeds with a 95 % CI, and the baselines."""
+    groups: dict[str, list] = {}
+    baselines = {}
+    for r in results:
+        if r["kind"] == "run":
+            groups.setdefault(f"{r['config']}/{r['method']}/{r['region']}", []).append(r)
+        else:
+            baselines[f"{r['baseline']}/{r['region']}"] = {
+                "coverage": r["coverage"]["mean"],
+                "nearest_neighbour": r["nearest_neighbour"]["mean"],
+                "fraction_inside": r["fraction_inside"]["mean"],
+                "ceiling": r["ceiling"],
+            }
+    runs = {}
+    for key, rs in sorted(groups.items()):
+        conv = [r["convergence_episode"] for r in rs]
+        runs[key] = {
+            "seeds": sorted(r["seed"] for r in rs),
+            "coverage": metrics.mean_ci([r["coverage"]["mean"] for r in rs]),
+            "coverage_per_seed": [round(r["coverage"]["mean"], 4) for r in rs],
+            "nearest_neighbour": metrics.mean_ci([r["nearest_neighbour"]["mean"] for r in rs]),
+            "fraction_inside": metrics.mean_ci([r["fraction_inside"]["mean"] for r in rs]),
+            "convergence_episode": conv,
+            "wall_seconds": metrics.mean_ci([r["wall_seconds"] or np.nan for r in rs]),
+        }
+    return {"runs": runs, "baselines": baselines}

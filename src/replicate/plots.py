@@ -10,6 +10,7 @@ import io
 from pathlib import Path
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -74,10 +75,11 @@ def overall_coverage(region: Polygon, xy: np.ndarray, radius: float, edges: int,
     """The union of coverage polygons with overlaps merged, clipped to the region (eq. 6). xy [N, 2]."""
     cov = coverage_polygons(xy, radius, edges)
     union = shapely.intersection(shapely.union_all(cov), region)
-    fig, ax = plt.subplots(figsize=(6, 6 * (region.bounds[3] - region.bounds[1] + 2) / (region.bounds[2] - region.bounds[0] + 2)))
+    minx, miny, maxx, maxy = region.bounds
+    fig, ax = plt.subplots(figsize=(6, 6 * (maxy - miny + 2) / (maxx - minx + 2)))
     draw_region(ax, region)
     draw_polygon(ax, union, facecolor="#f4a261", alpha=0.7, edgecolor="#9c4a00", linewidth=1.2)
-    for k, c in enumerate(cov):
+    for c in cov:
         x, y = c.exterior.xy
         ax.plot(x, y, color="k", linewidth=0.5, alpha=0.6)
     ax.plot(xy[:, 0], xy[:, 1], "k.", ms=4)
@@ -189,12 +191,16 @@ def bedok_map(lonlat: Polygon, utm: Polygon, utm_crs: str, source: str, attribut
     a.set_ylabel("latitude (°N)")
     a.set_title("lon/lat (EPSG:4326)")
     a.set_aspect(1 / np.cos(np.radians(lonlat.centroid.y)))
+    a.ticklabel_format(useOffset=False, style="plain")
+    a.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(4))
     draw_polygon(b, utm, facecolor="#9ecae1", edgecolor="#08519c")
     b.set_xlabel("easting (m)")
     b.set_ylabel("northing (m)")
     b.set_title(f"UTM ({utm_crs}), area {utm.area / 1e6:.3f} km²")
     b.set_aspect("equal")
     b.ticklabel_format(useOffset=False, style="plain")
+    b.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(4))
+    fig.subplots_adjust(wspace=0.35)
     fig.suptitle(f"Bedok Reservoir — outline source: {source}", fontsize=11)
     fig.text(0.5, -0.02, attribution, ha="center", fontsize=7, wrap=True)
     return save(fig, path)

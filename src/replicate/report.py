@@ -102,7 +102,8 @@ def write_report(summary_path: str, timing_path: str, figures: list[str], out: s
             lines.append(f"| {claim} | **{v}** | {ev} |")
         lines.append("")
     lines += ["## Coverage", "", "| config | method | region | seeds | coverage (95 % CI) | per seed | "
-              "nearest neighbour (m) | fraction inside | convergence episode |", "|---|---|---|---|---|---|---|---|---|"]
+              "nearest neighbour (m) | fraction inside | convergence episode |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for key, r in summary["runs"].items():
         config, method, region = key.split("/")
         lines.append(f"| {config} | {method.upper()}-MARL | {region} | {len(r['seeds'])} | {fmt(r['coverage'])} | "

@@ -1,0 +1,88 @@
+"""The figures stage: every figure of SPEC §9 from the pipeline's runs and metrics, one PNG per panel, for
+every configuration (drawing primitives are in ``plots``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from . import plots
+from .config import load_params, run_config
+from .evaluate import BASELINES, eval_env, read_curve
+from .metrics import coverage_ceiling
+from .regions import make_region
+
+
+def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir: str, outline_path: str) -> list:
+    """Every figure of SPEC §9, one PNG per panel, for every configuration; returns the paths written."""
+    from .regions import region_from_file
+
+    params = load_params(params_path)
+    fig = Path(figures_dir)
+    runs_dir, metrics_dir = Path(runs_dir), Path(metrics_dir)
+    summary = json.loads((metrics_dir / "summary.json").read_text())
+    c = params.coverage
+    written = []
+    regions = {n: make_region(n, params.regions[n], params.world.region_area) for n in params.regions}
+    written.append(plots.three_cases(regions["square"].polygon, c.radius, c.edges, fig / "fig_agent_vs_region.png"))
+
+    runs = sorted(p for p in runs_dir.iterdir() if (p / "curve.csv").exists())
+    by_group: dict[tuple, list] = {}
+    for run in runs:
+        ident = json.loads((run / "run.json").read_text())
+        by_group.setdefault((ident["config"], ident["method"], ident["region"]), []).append(run)
+
+    for (config, method, region_name), group in sorted(by_group.items()):
+        region = regions[region_name]
+        curves = [read_curve(r / "curve.csv") for r in sorted(group)]
+        tag = f"{config}_{method}_{region_name}"
+        label = f"{'SW' if method == 'sw' else 'CR'}-MARL, {region_name}, {config} config"
+        written.append(plots.reward_curves(curves, method, fig / f"fig_{tag}_reward.png", label))
+        first = sorted(group)[0]
+        metrics = json.loads((metrics_dir / "runs" / f"{first.name}.json").read_text())
+        xy = np.array(metrics["example"]["final_positions"])
+        trails = np.array(metrics["example"]["trajectory"])
+        env = eval_env(region, run_config(params, config, method), 1)
+        cov = metrics["coverage"]
+        note = f"seed {metrics['seed']}, evaluation coverage {cov['mean']:.2f} (100 episodes)"
+        written.append(plots.spread(region.polygon, env.patch, xy, c.radius, c.edges, fig / f"fig_{tag}_spread.png",
+                                    f"{label}: final positions of an evaluation episode", trails, note))
+        written.append(plots.diagnostics(curves[0], fig / f"fig_{tag}_diagnostics.png", f"{label}, seed 0"))
+        if config == "paper" and method == "cr" and region_name == "square":
+            written.append(plots.overall_coverage(region.polygon, xy, c.radius, c.edges,
+                                                  fig / "fig_overall_coverage.png", label))
+
+    for config in params.configs:
+        for region_name, region in regions.items():
+            curves_by_method = {
+                f"{m.upper()}-MARL": [read_curve(r / "curve.csv") for r in by_group.get((config, m, region_name), [])]
+                for m in params.methods
+            }
+            curves_by_method = {k: v for k, v in curves_by_method.items() if v}
+            if not curves_by_method:
+                continue
+            base = {b: summary["baselines"][f"{b}/{region_name}"]["coverage"] for b in BASELINES
+                    if f"{b}/{region_name}" in summary["baselines"]}
+            ceiling = coverage_ceiling(region.area, params.world.n_agents, c.radius, c.edges)
+            written.append(plots.coverage_vs_episode(curves_by_method, base, ceiling,
+                                                     fig / f"fig_{config}_coverage_{region_name}.png",
+                                                     f"Coverage during training, {region_name}, {config} config"))
+
+    outline = region_from_file(outline_path, area=None)
+    import geopandas as gpd
+
+    lonlat = gpd.read_file(outline_path).to_crs("EPSG:4326").geometry.iloc[0]
+    utm = gpd.GeoSeries([lonlat], crs="EPSG:4326").to_crs(outline.utm_crs).iloc[0]
+    written.append(plots.bedok_map(lonlat, utm, outline.utm_crs, describe_source(outline_path), outline.attribution,
+                                   fig / "fig_bedok_map.png"))
+    return [str(p) for p in written]
+
+
+def describe_source(outline_path: str) -> str:
+    """Where an outline written by the fetch stage came from, for figure titles."""
+    props = json.loads(Path(outline_path).read_text())["features"][0]["properties"]
+    if props.get("source") == "openstreetmap":
+        return f"OpenStreetMap ({props.get('osm_id')}, retrieved {props.get('retrieved')})"
+    return f"bundled SLA National Map outline — OpenStreetMap was unreachable ({props.get('retrieved')})"
