@@ -83,6 +83,7 @@ def test_dvc_repro_end_to_end(tmp_path):
     copy_repo(repo)
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params["train"].update(episodes=50, seeds=[0, 1], checkpoint_every=50)
+    params["pipeline"]["configs"] = ["paper", "tuned"]
     params["evaluate"].update(episodes=4)
     params["evaluate"]["lloyd"]["converged_steps"] = 60
     params["fetch_outline"]["nominatim_url"] = "http://127.0.0.1:9/"  # nothing listens: OSM is unreachable

@@ -1,4 +1,5 @@
-"""The ``replicate`` command: ``train`` and ``evaluate`` (``replicate COMMAND --help`` for the options)."""
+"""The ``replicate`` command: ``train``, ``evaluate``, ``cover``, ``export``, ``act``, ``animate``
+(``replicate COMMAND --help`` for the options)."""
 
 from __future__ import annotations
 
@@ -93,6 +94,75 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_region(run_dir: str, params: Params, region: str | None) -> Region:
+    import json
+
+    path = Path(run_dir) / "run.json"
+    if region is None and not path.exists():
+        raise FileNotFoundError(f"{path}: not a run folder (no run.json); pass --region")
+    return resolve_region(region or json.loads(path.read_text())["region"], params)
+
+
+def cmd_cover(args: argparse.Namespace) -> int:
+    import tempfile
+
+    from .waterbody import cover, outline_file
+
+    params = load_params(args.params, overrides(args.set))
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = outline_file(args.region, args.place, args.name, Path(tmp))
+        if args.place:
+            artifacts.atomic_write_bytes(out / "outline.geojson", path.read_bytes())
+            path = out / "outline.geojson"
+        s = cover(path, params, out, args.episodes, args.seed, args.n_agents, args.radius_m, args.config,
+                  not args.no_progress)
+    cov, lloyd = s["coverage"], s["lloyd_coverage"]
+    print(f"{s['region']}: {s['n_agents']} buoys of radius {s['radius_m']:.3g} m on {s['area_m2']:.4g} m² "
+          f"({s['utm_crs']}, 1 sim m = {s['scale_m_per_sim_m']:.4g} m), T = {s['episode_length']}")
+    print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f}) vs Lloyd {lloyd['mean']:.3f}: "
+          f"{s['ratio_to_lloyd']:.0%} of the Lloyd layout; wrote {out}/")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from .export import export_policy
+
+    params = load_params(args.params, overrides(args.set))
+    region = run_region(args.run, params, args.region)
+    out = Path(args.out or Path(args.run) / "policy.pt")
+    meta = export_policy(Path(args.run) / "actors.pt", region, out, params.world.sensitivity)
+    print(f"exported {meta['n_agents']} actors ({meta['observation']}) for {meta['region']} to {out}")
+    return 0
+
+
+def cmd_act(args: argparse.Namespace) -> int:
+    import json
+
+    import numpy as np
+
+    from .export import act
+
+    if args.obs is not None:
+        obs = np.array([[float(v) for v in row.split(",")] for row in args.obs.split(";")])
+    else:
+        obs = np.array(json.loads(Path(args.obs_file).read_text()))
+    actions = act(args.policy, obs, real=args.real)
+    print(json.dumps({f"buoy_{i}": [round(float(v), 6) for v in a] for i, a in enumerate(actions)}))
+    return 0
+
+
+def cmd_animate(args: argparse.Namespace) -> int:
+    from .animate import animate_run
+
+    params = load_params(args.params, overrides(args.set))
+    region = run_region(args.run, params, args.region)
+    out = animate_run(args.run, params, region, args.out or Path(args.run) / "episode.gif", args.seed)
+    print(f"wrote {out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="replicate", description=__doc__)
     parser.add_argument("--params", default="params.yaml", help="parameters file (default: params.yaml)")
@@ -119,6 +189,41 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--config", default="paper", help="physics/T of this config for a baseline")
     e.add_argument("--out", default=None, help="output JSON")
     e.set_defaults(func=cmd_evaluate)
+
+    c = sub.add_parser("cover", help="train CR-MARL on any waterbody and compare with the Lloyd layout")
+    c.add_argument("--region", default=None, help="vector file (any CRS) or OSM XML (.osm) of the outline")
+    c.add_argument("--place", default=None, help="an OSM place name (needs the network)")
+    c.add_argument("--name", default=None, help="the water feature's name (OSM place or .osm file)")
+    c.add_argument("--episodes", type=int, default=2000)
+    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--config", default="tuned")
+    c.add_argument("--n-agents", type=int, default=None, help="number of buoys (default: world.n_agents)")
+    c.add_argument("--radius-m", type=float, default=None,
+                   help="real scale: coverage radius in metres (default: the paper's 9 m² scale)")
+    c.add_argument("--out", default="runs/cover")
+    c.add_argument("--no-progress", action="store_true")
+    c.set_defaults(func=cmd_cover)
+
+    x = sub.add_parser("export", help="export a run's actors as one TorchScript file with metadata")
+    x.add_argument("--run", required=True)
+    x.add_argument("--region", default=None, help="region (default: the run's own)")
+    x.add_argument("--out", default=None, help="default RUN/policy.pt")
+    x.set_defaults(func=cmd_export)
+
+    a = sub.add_parser("act", help="map observations to commands with an exported policy (prints JSON)")
+    a.add_argument("--policy", required=True)
+    group = a.add_mutually_exclusive_group(required=True)
+    group.add_argument("--obs", help='observations "x,y;x,y;..." one buoy per ";"')
+    group.add_argument("--obs-file", help="JSON file with an [N, obs_dim] list")
+    a.add_argument("--real", action="store_true", help="observations are UTM metres (m/s), not simulation units")
+    a.set_defaults(func=cmd_act)
+
+    m = sub.add_parser("animate", help="GIF of an evaluation episode of a run")
+    m.add_argument("run")
+    m.add_argument("--region", default=None)
+    m.add_argument("--seed", type=int, default=None)
+    m.add_argument("--out", default=None, help="default RUN/episode.gif")
+    m.set_defaults(func=cmd_animate)
     return parser
 
 
@@ -127,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
     warnings.simplefilter("default")
     try:
         return args.func(args)
-    except (ConfigError, RegionError, CheckpointError, FileNotFoundError) as exc:
+    except (ConfigError, RegionError, CheckpointError, FileNotFoundError, ValueError) as exc:
         print(f"replicate: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

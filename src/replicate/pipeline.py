@@ -23,13 +23,16 @@ def run_name(config: str, method: str, region: str, seed: int) -> str:
 def _train_one(job: dict) -> dict:
     import torch
 
-    from .train import train
+    from .train import finished_run, run_identity, train
 
     torch.set_num_threads(1)
     params = load_params(job["params"])
     region = make_region(job["region"], params.regions[job["region"]], params.world.region_area)
     rc = run_config(params, job["config"], job["method"])
     out = Path(job["out"])
+    done = finished_run(out, run_identity(rc, region, job["episodes"], job["seed"]))
+    if done is not None:  # already trained with these exact settings (runs/ persists across repro)
+        return done
     resume = (out / "checkpoint.pt").exists()
     summary = train(rc, region, job["episodes"], job["seed"], out, params.train.checkpoint_every, resume, False)
     (out / "checkpoint.pt").unlink(missing_ok=True)  # the replay buffer is ~100 MB: not a pipeline output
@@ -39,7 +42,8 @@ def _train_one(job: dict) -> dict:
 def train_matrix(params_path: str, configs, methods, regions, seeds, episodes: int, runs_dir: str, workers: int):
     """Train every config × method × region × seed, ``workers`` processes at a time (one per core).
 
-    An interrupted matrix resumes each unfinished run from its checkpoint when run again."""
+    Run again, the matrix skips runs already finished with identical settings and resumes interrupted ones
+    from their checkpoints, so adding seeds or a configuration trains only what is new."""
     jobs = [
         {"params": params_path, "config": c, "method": m, "region": r, "seed": s, "episodes": episodes,
          "out": str(Path(runs_dir) / run_name(c, m, r, s))}

@@ -39,6 +39,31 @@ def noise_sigma(cfg, progress: float) -> float:
     return cfg.noise_start + frac * (cfg.noise_end - cfg.noise_start)
 
 
+def run_identity(rc: RunConfig, region: Region, episodes: int, seed: int) -> dict:
+    """What makes two runs the same run: checked on resume, and by the pipeline to skip finished runs."""
+    return {
+        "config": rc.config_name,
+        "method": rc.method_name,
+        "region": region.name,
+        "region_key": region_key(region.polygon),
+        "seed": seed,
+        "episodes": episodes,
+        "params": to_dict(rc),
+    }
+
+
+def finished_run(out: str | Path, identity: dict) -> dict | None:
+    """The summary of a finished run in ``out`` with this identity, else None."""
+    import json
+
+    path = Path(out) / "run.json"
+    if not (path.exists() and (Path(out) / "actors.pt").exists()):
+        return None
+    summary = json.loads(path.read_text())
+    same = all(summary.get(k) == v for k, v in identity.items())
+    return summary if same and summary.get("status") == "finished" else None
+
+
 def make_env(region: Region, rc: RunConfig, n_envs: int, seed) -> CoverageEnv:
     """The training environment of a run config (reward, observation, geofence, credit from params.yaml)."""
     return CoverageEnv(
@@ -92,15 +117,7 @@ class Trainer:
 
     # ---- identity of a run, checked on resume ----------------------------------------------------------
     def identity(self) -> dict:
-        return {
-            "config": self.rc.config_name,
-            "method": self.rc.method_name,
-            "region": self.region.name,
-            "region_key": region_key(self.region.polygon),
-            "seed": self.seed,
-            "episodes": self.episodes,
-            "params": to_dict(self.rc),
-        }
+        return run_identity(self.rc, self.region, self.episodes, self.seed)
 
     def run(self) -> dict:
         """Train to ``episodes``, checkpointing on the way; returns the run summary."""

@@ -1,0 +1,61 @@
+"""Animations: a GIF of one evaluation episode of a trained run (region, buoys, coverage polygons, trails)."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from . import plots
+from .config import Params, run_config
+from .evaluate import actor_policy, eval_env, rollout
+from .geometry import coverage_fraction_exact, coverage_polygons
+from .regions import Region
+from .train import load_actors
+
+
+def animate_run(run_dir: str | Path, params: Params, region: Region, out: str | Path, seed: int | None = None,
+                fps: int = 10) -> Path:
+    """Roll out the run's deterministic actors for one episode and write it as a GIF (atomically)."""
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    net, meta = load_actors(Path(run_dir) / "actors.pt")
+    ident = meta["identity"]
+    rc = run_config(params, ident["config"], ident["method"])
+    env = eval_env(region, rc, 1, rc.algo.observation)
+    trace = rollout(env, actor_policy(net, meta["observation"]), rc.world.episode_length,
+                    params.evaluate.seed if seed is None else seed)["positions"][:, 0]  # [T + 1, N, 2]
+    c = rc.coverage
+    cover = coverage_fraction_exact(region.polygon, trace, c.radius, c.edges)  # [T + 1]
+
+    fig, ax = plots.plt.subplots(figsize=(6, 5))
+    minx, miny, maxx, maxy = region.polygon.bounds
+    lo = np.minimum(trace.reshape(-1, 2).min(0) - c.radius, (minx - 0.5, miny - 0.5))
+    hi = np.maximum(trace.reshape(-1, 2).max(0) + c.radius, (maxx + 0.5, maxy + 0.5))
+
+    def frame(t: int):
+        ax.clear()
+        plots.draw_region(ax, region.polygon, env.patch)
+        for k, poly in enumerate(coverage_polygons(trace[t], c.radius, c.edges)):
+            colour = plots.AGENT_COLOURS[k % 10]
+            plots.draw_polygon(ax, poly, facecolor=colour, alpha=0.35, edgecolor=colour)
+            ax.plot(trace[: t + 1, k, 0], trace[: t + 1, k, 1], color=colour, linewidth=0.8)
+        ax.plot(trace[t, :, 0], trace[t, :, 1], "k.", ms=5)
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_title(f"{ident['config']} {ident['method'].upper()}-MARL, {region.name}: step {t}, "
+                     f"coverage {cover[t]:.2f}", fontsize=9)
+
+    anim = FuncAnimation(fig, frame, frames=len(trace))
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.NamedTemporaryFile(dir=out.parent, prefix=f".{out.name}.", suffix=".gif", delete=False) as tmp:
+        tmp_path = Path(tmp.name)
+    try:
+        anim.save(tmp_path, writer=PillowWriter(fps=fps))
+        tmp_path.replace(out)
+    finally:
+        tmp_path.unlink(missing_ok=True)
+        plots.plt.close(fig)
+    return out

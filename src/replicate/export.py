@@ -1,0 +1,112 @@
+"""Policies a buoy can run: the trained decentralised actors as one TorchScript file per swarm.
+
+The file holds the N stacked actors and, as ``metadata.json``, everything needed to use them without this
+package: the observation layout, the action meaning, and the map between simulation and real coordinates
+(``real = offset + scale · sim`` in the region's UTM CRS). Load it with ``torch.jit.load`` anywhere torch runs.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from . import artifacts
+from .artifacts import CheckpointError
+from .regions import Region
+from .train import load_actors
+
+OBS_LAYOUT = {"position": ["x", "y"], "position_velocity": ["x", "y", "vx", "vy"]}
+
+
+class SwarmPolicy(nn.Module):
+    """a_i = tanh(μ_i(o_i)) for every buoy i at once: obs [N, obs_dim] or [B, N, obs_dim] → actions, same shape
+    with 2 in the last axis."""
+
+    def __init__(self, weights: list[torch.Tensor], biases: list[torch.Tensor]):
+        super().__init__()
+        self.w0, self.w1, self.w2 = (nn.Parameter(w.detach().clone(), requires_grad=False) for w in weights)
+        self.b0, self.b1, self.b2 = (nn.Parameter(b.detach().clone(), requires_grad=False) for b in biases)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        squeeze = obs.dim() == 2
+        x = obs.unsqueeze(0) if squeeze else obs
+        x = x.transpose(0, 1)  # [N, B, obs_dim]
+        x = torch.relu(torch.baddbmm(self.b0, x, self.w0))
+        x = torch.relu(torch.baddbmm(self.b1, x, self.w1))
+        a = torch.tanh(torch.baddbmm(self.b2, x, self.w2)).transpose(0, 1)
+        return a.squeeze(0) if squeeze else a
+
+
+def export_policy(actors_path: str | Path, region: Region, out: str | Path, sensitivity: float = 5.0) -> dict:
+    """Write the run's actors as TorchScript with their metadata; returns the metadata."""
+    net, meta = load_actors(actors_path)
+    ident = meta["identity"]
+    if ident.get("region_key") is not None:
+        from .geometry import region_key
+
+        if region_key(region.polygon) != ident["region_key"]:
+            raise CheckpointError(f"{actors_path}: trained on another region than {region.name!r}")
+    with warnings.catch_warnings():  # TorchScript is deprecated upstream but is what a buoy's runtime loads
+        warnings.simplefilter("ignore", DeprecationWarning)
+        module = torch.jit.script(SwarmPolicy(list(net.weights), list(net.biases)))
+    metadata = {
+        "format": "buoy-swarm-coverage policy v1",
+        "n_agents": int(net.weights[0].shape[0]),
+        "agents": [f"buoy_{i}" for i in range(int(net.weights[0].shape[0]))],
+        "observation": meta["observation"],
+        "observation_layout": OBS_LAYOUT[meta["observation"]],
+        "action": f"force direction in [-1, 1]^2 per buoy; force = {sensitivity} * action (simulation units)",
+        "input_shape": "[N, obs_dim] or [batch, N, obs_dim], simulation coordinates",
+        "region": region.name,
+        "region_wkt_sim": region.polygon.wkt,
+        "scale_m_per_sim_m": region.scale,
+        "utm_crs": region.utm_crs,
+        "offset": list(region.offset),
+        "to_real": "utm = offset + scale * sim; sim = (utm - offset) / scale",
+        "trained": {k: ident[k] for k in ("config", "method", "seed", "episodes")},
+    }
+    buf = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.jit.save(module, buf, _extra_files={"metadata.json": json.dumps(metadata)})
+    artifacts.atomic_write_bytes(out, buf.getvalue())
+    return metadata
+
+
+def load_policy(path: str | Path) -> tuple[torch.jit.ScriptModule, dict]:
+    """(policy, metadata) from an exported file."""
+    path = Path(path)
+    if not path.exists():
+        raise CheckpointError(f"{path}: no policy file here")
+    extra = {"metadata.json": ""}
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            module = torch.jit.load(str(path), map_location="cpu", _extra_files=extra)
+        metadata = json.loads(extra["metadata.json"])
+    except Exception as exc:  # noqa: BLE001 - any load failure is a corrupt file
+        raise CheckpointError(f"{path}: not a readable exported policy ({type(exc).__name__}: {exc})") from exc
+    return module, metadata
+
+
+def act(path: str | Path, observations: np.ndarray, real: bool = False) -> np.ndarray:
+    """Commands for every buoy from its observation [N, obs_dim]; ``real`` observations are UTM metres (and m/s)
+    and are mapped to simulation units first."""
+    module, meta = load_policy(path)
+    obs = np.asarray(observations, dtype=float)
+    dim = len(meta["observation_layout"])
+    if obs.shape != (meta["n_agents"], dim):
+        raise ValueError(f"expected observations of shape ({meta['n_agents']}, {dim}) "
+                         f"[{', '.join(meta['observation_layout'])}], got {obs.shape}")
+    if real:
+        obs = obs.copy()
+        obs[:, :2] = (obs[:, :2] - np.asarray(meta["offset"])) / meta["scale_m_per_sim_m"]
+        obs[:, 2:] = obs[:, 2:] / meta["scale_m_per_sim_m"]
+    with torch.no_grad():
+        return module(torch.as_tensor(obs, dtype=torch.float32)).numpy()

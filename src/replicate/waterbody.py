@@ -1,0 +1,107 @@
+"""Cover any waterbody: outline (file or OSM place) → UTM → region → tuned CR-MARL → metrics, spread plot, and
+the comparison with the Lloyd layout (``replicate cover``).
+
+Two scales:
+
+* ``paper`` (default): the region is scaled to the paper's 9 m², N buoys of coverage radius R = 0.5 m.
+* ``real``: the region keeps its size in metres and the buoys get a real coverage radius ``radius_m``. The
+  simulation unit becomes ``L = radius_m / R`` metres, so the coverage polygon, the start patch, the SW ranges
+  and the physics keep their paper values in simulation units; the region is ``A_real / L²`` simulation m², and
+  the episode length grows with the region's linear size, ``T = T_paper · sqrt(A_sim / 9)`` (never shorter).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+from shapely import affinity
+
+from . import artifacts, plots
+from .config import Params, run_config
+from .evaluate import eval_env, evaluate_baseline, evaluate_run
+from .osm import OSMUnavailable, outline_from_osm_xml, query_osm
+from .regions import Region, RegionError, check_polygon, region_from_file
+from .train import train
+
+
+def outline_file(region: str | None, place: str | None, name: str | None, workdir: Path) -> Path:
+    """A vector file holding the outline: the file given, an OSM XML file parsed, or an OSM place queried."""
+    if (region is None) == (place is None):
+        raise RegionError("give exactly one of --region FILE or --place NAME")
+    if region is not None:
+        path = Path(region)
+        if path.suffix.lower() == ".osm":
+            outline = outline_from_osm_xml(path, name or path.stem)
+            outline.write(workdir / "outline.geojson")
+            return workdir / "outline.geojson"
+        return path
+    try:
+        outline = query_osm(place, name or place.split(",")[0], {"natural": "water"}, timeout=10)
+    except OSMUnavailable as exc:
+        raise RegionError(
+            f"{exc}. Offline, download the outline elsewhere (GeoJSON, shapefile, GeoPackage or OSM XML) "
+            f"and pass it with --region FILE"
+        ) from exc
+    outline.write(workdir / "outline.geojson")
+    return workdir / "outline.geojson"
+
+
+def scaled_setup(path: Path, params: Params, n_agents: int | None, radius_m: float | None) -> tuple[Region, Params]:
+    """The region and the params of a cover run (see the module docstring for the two scales)."""
+    world = params.world if n_agents is None else dataclasses.replace(params.world, n_agents=int(n_agents))
+    if world.n_agents < 1:
+        raise RegionError("at least one buoy is needed")
+    if radius_m is None:
+        region = region_from_file(path, area=world.region_area)
+    else:
+        if radius_m <= 0:
+            raise RegionError(f"the coverage radius must be positive, got {radius_m} m")
+        real = region_from_file(path, area=None)
+        unit = radius_m / params.coverage.radius  # metres per simulation metre
+        sim = check_polygon(affinity.scale(real.polygon, 1 / unit, 1 / unit, origin=(0, 0)), real.name)
+        region = dataclasses.replace(real, polygon=sim, scale=unit, notes=real.notes + (
+            f"real scale: 1 simulation metre = {unit:g} m (coverage radius {radius_m:g} m)",))
+        horizon = max(world.episode_length, math.ceil(world.episode_length * math.sqrt(sim.area / world.region_area)))
+        world = dataclasses.replace(world, episode_length=horizon, region_area=sim.area)
+    return region, dataclasses.replace(params, world=world)
+
+
+def cover(
+    path: Path, params: Params, out: Path, episodes: int, seed: int = 0, n_agents: int | None = None,
+    radius_m: float | None = None, config: str = "tuned", progress: bool = True,
+) -> dict:
+    """Train CR-MARL on the waterbody in ``path`` and compare its coverage with the converged Lloyd layout."""
+    region, params = scaled_setup(path, params, n_agents, radius_m)
+    rc = run_config(params, config, "cr")
+    n_envs = rc.algo.n_envs
+    episodes = max(n_envs, episodes - episodes % n_envs)
+    train(rc, region, episodes, seed, out / "run", params.train.checkpoint_every, resume=False, progress=progress)
+    method = evaluate_run(out / "run", params, region)
+    lloyd = evaluate_baseline("lloyd_converged", params, region, config)
+    c = params.coverage
+    env = eval_env(region, rc, 1)
+    xy = method["example"]["final_positions"]
+    import numpy as np
+
+    plots.spread(region.polygon, env.patch, np.array(xy), c.radius, c.edges, out / "spread.png",
+                 f"CR-MARL ({config}) on {region.name}: final positions of an evaluation episode",
+                 np.array(method["example"]["trajectory"]),
+                 f"coverage {method['coverage']['mean']:.2f}, Lloyd {lloyd['coverage']['mean']:.2f}")
+    summary = {
+        "region": region.name,
+        "utm_crs": region.utm_crs,
+        "scale_m_per_sim_m": region.scale,
+        "area_m2": region.area * region.scale**2,
+        "n_agents": params.world.n_agents,
+        "radius_m": c.radius * region.scale,
+        "episode_length": params.world.episode_length,
+        "episodes": episodes,
+        "coverage": method["coverage"],
+        "lloyd_coverage": lloyd["coverage"],
+        "ratio_to_lloyd": method["coverage"]["mean"] / max(lloyd["coverage"]["mean"], 1e-12),
+        "notes": list(region.notes),
+    }
+    artifacts.write_json(out / "summary.json", summary)
+    return summary

@@ -1,0 +1,108 @@
+"""Beyond the paper: exported policies, animations, covering a waterbody the repo does not ship."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+
+import geopandas as gpd
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+from shapely.geometry import Polygon
+
+from replicate.animate import animate_run
+from replicate.artifacts import CheckpointError
+from replicate.config import load_params
+from replicate.export import act, export_policy, load_policy
+from replicate.metrics import coverage_ceiling
+from replicate.train import load_actors
+
+from .conftest import ROOT
+from .test_training import SMALL, cli, small_trainer
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory, params, regions):
+    out = tmp_path_factory.mktemp("toolkit") / "run"
+    small_trainer(params, regions["square"], out, seed=2, episodes=30).run()
+    return out
+
+
+def small_params():
+    overrides = dict(s.split("=") for s in SMALL[1::2])
+    return load_params(ROOT / "params.yaml", {k: int(v) for k, v in overrides.items()})
+
+
+def test_exported_policy_equals_training_actor(small_run, regions, tmp_path):
+    meta = export_policy(small_run / "actors.pt", regions["square"], tmp_path / "policy.pt")
+    assert meta["observation_layout"] == ["x", "y", "vx", "vy"] and meta["n_agents"] == 9
+    module, loaded = load_policy(tmp_path / "policy.pt")
+    assert loaded == meta
+    net, _ = load_actors(small_run / "actors.pt")
+    obs = torch.randn(64, 9, 4)
+    with torch.no_grad():
+        expected = torch.tanh(net(obs.transpose(0, 1))).transpose(0, 1)
+    torch.testing.assert_close(module(obs), expected, rtol=0, atol=0)
+    with torch.no_grad():
+        single = torch.tanh(net(obs[:1].transpose(0, 1))).transpose(0, 1)[0]
+    torch.testing.assert_close(module(obs[0]), single, rtol=0, atol=0)  # one swarm observation: [N, obs_dim]
+    np.testing.assert_allclose(act(tmp_path / "policy.pt", obs[0].numpy()), expected[0].numpy(), atol=1e-7)
+    with pytest.raises(ValueError, match="shape"):
+        act(tmp_path / "policy.pt", np.zeros((9, 2)))
+    with pytest.raises(CheckpointError, match="another region"):
+        export_policy(small_run / "actors.pt", regions["rectangle"], tmp_path / "wrong.pt")
+    (tmp_path / "broken.pt").write_bytes(b"not a policy")
+    with pytest.raises(CheckpointError, match="not a readable exported policy"):
+        load_policy(tmp_path / "broken.pt")
+
+
+def test_act_command_with_real_coordinates(small_run, regions, tmp_path):
+    bedok_like = dataclasses.replace(regions["square"], scale=300.0, offset=(380000.0, 148000.0))
+    export_policy(small_run / "actors.pt", bedok_like, tmp_path / "policy.pt")
+    sim = np.random.default_rng(0).uniform(-1, 1, (9, 4))
+    real = sim.copy()
+    real[:, :2] = np.array([380000.0, 148000.0]) + 300.0 * sim[:, :2]
+    real[:, 2:] = 300.0 * sim[:, 2:]
+    (tmp_path / "obs.json").write_text(json.dumps(real.tolist()))
+    proc = cli("act", "--policy", str(tmp_path / "policy.pt"), "--obs-file", str(tmp_path / "obs.json"), "--real",
+               stdout=subprocess.PIPE, text=True)
+    assert proc.wait(timeout=300) == 0
+    got = json.loads(proc.stdout.read())
+    np.testing.assert_allclose([got[f"buoy_{i}"] for i in range(9)], act(tmp_path / "policy.pt", sim), atol=1e-5)
+
+
+def test_animation_has_one_frame_per_step(small_run, params, regions, tmp_path):
+    gif = animate_run(small_run, small_params(), regions["square"], tmp_path / "episode.gif")
+    with Image.open(gif) as im:
+        assert im.n_frames == params.world.episode_length + 1
+    assert not list(tmp_path.glob(".*.gif"))
+
+
+def test_cover_a_lake_the_repo_does_not_ship(tmp_path):
+    """`replicate cover --region FILE` offline end to end, at real scale with 5 buoys of 150 m."""
+    lake = Polygon([(6.56, 46.50), (6.575, 46.502), (6.58, 46.51), (6.565, 46.512), (6.555, 46.505)])
+    gpd.GeoDataFrame({"name": ["test lake"]}, geometry=[lake], crs="EPSG:4326").to_file(tmp_path / "lake.geojson")
+    proc = cli(*SMALL, "cover", "--region", str(tmp_path / "lake.geojson"), "--episodes", "20", "--n-agents", "5",
+               "--radius-m", "150", "--out", str(tmp_path / "out"), "--no-progress", stdout=subprocess.PIPE, text=True)
+    assert proc.wait(timeout=600) == 0
+    text = proc.stdout.read()
+    assert "of the Lloyd layout" in text and "EPSG:32632" in text
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["n_agents"] == 5 and summary["radius_m"] == pytest.approx(150.0)
+    assert summary["scale_m_per_sim_m"] == pytest.approx(300.0)
+    assert summary["episode_length"] >= 50
+    ceiling = coverage_ceiling(summary["area_m2"] / 300.0**2, 5, 0.5, 30)
+    assert 0.15 < ceiling < 0.3  # 5 × 0.07 km² on a lake of about 1.5 km²
+    assert 0.0 <= summary["coverage"]["mean"] <= ceiling + 1e-9
+    assert 0.8 * ceiling < summary["lloyd_coverage"]["mean"] <= ceiling + 1e-9
+    assert (tmp_path / "out" / "spread.png").exists()
+
+
+def test_cover_place_offline_names_the_alternative(tmp_path):
+    proc = cli("cover", "--place", "Bedok Reservoir, Singapore", "--out", str(tmp_path / "o"),
+               stderr=subprocess.PIPE, text=True)
+    assert proc.wait(timeout=300) == 2
+    assert "--region FILE" in proc.stderr.read()
