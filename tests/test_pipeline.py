@@ -110,6 +110,9 @@ def test_dvc_repro_end_to_end(tmp_path):
     figures = {p.name for p in (repo / "figures").glob("*.png")}
     missing = expected_figures(params["pipeline"]["configs"]) - figures
     assert not missing, f"figures not produced: {sorted(missing)}"
+    gifs = {p.name for p in (repo / "figures").glob("*.gif")}
+    regions = ("square", "rectangle", "bedok")
+    assert gifs == {f"anim_{c}_cr_{r}.gif" for c in params["pipeline"]["configs"] for r in regions}
     outline = json.loads((repo / "data" / "bedok_outline.geojson").read_text())
     assert outline["features"][0]["properties"]["source"] == "fallback"
     assert "bundled" in (repo / "notebooks" / "executed" / "fetch_outline.ipynb").read_text()

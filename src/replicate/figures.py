@@ -70,6 +70,13 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
                                                      fig / f"fig_{config}_coverage_{region_name}.png",
                                                      f"Coverage during training, {region_name}, {config} config"))
 
+    from .animate import animate_run
+
+    for (config, method, region_name), group in sorted(by_group.items()):
+        if method == "cr":  # one animated evaluation episode per region and configuration
+            written.append(animate_run(sorted(group)[0], params, regions[region_name],
+                                       fig / f"anim_{config}_cr_{region_name}.gif"))
+
     outline = region_from_file(outline_path, area=None)
     import geopandas as gpd
 

@@ -32,7 +32,7 @@ def _train_one(job: dict) -> dict:
     out = Path(job["out"])
     done = finished_run(out, run_identity(rc, region, job["episodes"], job["seed"]))
     if done is not None:  # already trained with these exact settings (runs/ persists across repro)
-        return done
+        return {**done, "skipped": True}
     resume = (out / "checkpoint.pt").exists()
     summary = train(rc, region, job["episodes"], job["seed"], out, params.train.checkpoint_every, resume, False)
     (out / "checkpoint.pt").unlink(missing_ok=True)  # the replay buffer is ~100 MB: not a pipeline output
@@ -53,8 +53,8 @@ def train_matrix(params_path: str, configs, methods, regions, seeds, episodes: i
     with ProcessPoolExecutor(max_workers=workers) as pool:
         summaries = list(pool.map(_train_one, jobs))
     wall = time.perf_counter() - t0
-    table = [{k: s[k] for k in ("config", "method", "region", "seed", "wall_seconds", "final_coverage_last100")}
-             for s in summaries]
+    keys = ("config", "method", "region", "seed", "wall_seconds", "final_coverage_last100")
+    table = [{**{k: s[k] for k in keys}, "skipped": s.get("skipped", False)} for s in summaries]
     artifacts.write_json(Path(runs_dir) / "summary.json", {"wall_seconds": round(wall, 1), "runs": table})
     return wall, table
 

@@ -117,7 +117,13 @@ def write_report(summary_path: str, timing_path: str, figures: list[str], out: s
                      f"{b['fraction_inside']:.2f} | {b['ceiling']:.3f} |")
     lines += ["", "## Time", ""]
     if timing:
-        lines.append(f"Training matrix: {timing['wall_seconds']:.0f} s wall on this machine.")
+        runs = timing["runs"]
+        total = sum(r["wall_seconds"] for r in runs)
+        kept = sum(r.get("skipped", False) for r in runs)
+        lines.append(f"Training: {len(runs)} runs, {total:.0f} s of training in all (one core each, "
+                     f"{min(r['wall_seconds'] for r in runs):.0f}-{max(r['wall_seconds'] for r in runs):.0f} s "
+                     f"per run); the last `train` stage took {timing['wall_seconds']:.0f} s wall and kept {kept} "
+                     f"runs already finished with identical settings.")
     for stage, seconds in stage_times.items():
         lines.append(f"- `{stage}`: {seconds:.0f} s")
     lines += ["", "## Figures", ""]

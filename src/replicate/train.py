@@ -202,6 +202,8 @@ class Trainer:
             "transitions": self.transitions,
             "pending_updates": self.pending_updates,
             "wall": self.wall,
+            "updates": self.updates,
+            "update_seconds": self.update_seconds,
         }
         artifacts.torch_save(self.out / "checkpoint.pt", state)
 
@@ -218,12 +220,14 @@ class Trainer:
             self.env.rng.bit_generator.state = state["rng"]["env"]
             self.noise_rng.bit_generator.state = state["rng"]["noise"]
             self.sample_rng.bit_generator.state = state["rng"]["sample"]
+            self.rows = [list(r) for r in state["rows"]]
+            self.transitions = int(state["transitions"])
+            self.pending_updates = float(state["pending_updates"])
+            self.wall = float(state["wall"])
+            self.updates = int(state["updates"])
+            self.update_seconds = float(state["update_seconds"])
         except (KeyError, RuntimeError, ValueError, TypeError) as exc:
             raise CheckpointError(f"{path}: checkpoint is incomplete or mismatched ({exc})") from exc
-        self.rows = [list(r) for r in state["rows"]]
-        self.transitions = int(state["transitions"])
-        self.pending_updates = float(state["pending_updates"])
-        self.wall = float(state["wall"])
 
     def save_actors(self) -> None:
         artifacts.torch_save(
