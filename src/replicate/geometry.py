@@ -172,7 +172,7 @@ class CoverageGeometry:
         gx, gy = np.meshgrid(cx, cy, indexing="ij")
         self.mask = shapely.contains_xy(self.region, gx.ravel(), gy.ravel())  # [nx * ny], x-major
         # Stencils: cells whose centre lies in K for an agent at sub-pixel offset ((q + 0.5) / subpixel) h,
-        # as flat index offsets; padded entries point at a masked cell (index 0, never in the region).
+        # as flat index offsets; row k holds stencil_len[k] of them.
         d = np.arange(-w, w + 1)
         dx, dy = np.meshgrid(d, d, indexing="ij")
         normals = self.offsets + np.roll(self.offsets, -1, axis=0)
