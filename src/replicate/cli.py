@@ -75,11 +75,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if (args.run is None) == (args.baseline is None):
         raise ConfigError("give exactly one of --run RUN_DIR or --baseline NAME")
     if args.run is not None:
-        import json
-
-        run = json.loads((Path(args.run) / "run.json").read_text()) if (Path(args.run) / "run.json").exists() else {}
-        region = resolve_region(args.region or run.get("region", ""), params)
-        result = evaluate_run(args.run, params, region)
+        result = evaluate_run(args.run, params, run_region(args.run, params, args.region))
         default = Path(args.run) / "metrics.json"
     else:
         if not args.region:

@@ -94,7 +94,8 @@ class CoverageParallelEnv(ParallelEnv):
         obs = self._obs(result.obs)
         rewards = {a: float(result.reward[0, i]) for i, a in enumerate(self.possible_agents)}
         truncated = bool(result.done)
-        coverage = float(self.core.coverage_fraction()[0])
+        union = result.union_area[0]  # measured by the CR reward; NaN otherwise
+        coverage = float(union / self.core.region.area if np.isfinite(union) else self.core.coverage_fraction()[0])
         terminations = {a: False for a in self.agents}
         truncations = {a: truncated for a in self.agents}
         infos = {a: {"coverage": coverage} for a in self.agents}

@@ -153,7 +153,9 @@ class Trainer:
                         diag["q_abs"].append(stats["q_abs"])
                         self.updates += 1
                     self.update_seconds += time.perf_counter() - tu
-            coverage = self.env.coverage_fraction()
+            # CR's reward already measured the union at the last step; SW's did not
+            coverage = step.union_area / self.region.area if self.rc.method.reward == "cr" else None
+            coverage = self.env.coverage_fraction() if coverage is None else coverage
             loss = float(np.mean(diag["critic_loss"])) if diag["critic_loss"] else math.nan
             q_abs = float(np.mean(diag["q_abs"])) if diag["q_abs"] else math.nan
             for e in range(n_env):
