@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from . import plots
-from .config import load_params, run_config
-from .evaluate import BASELINES, eval_env, read_curve
+from .config import load_params
+from .env import start_patch
+from .evaluate import BASELINES, read_curve
 from .metrics import coverage_ceiling
 from .regions import make_region
 
@@ -34,9 +35,10 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
         ident = json.loads((run / "run.json").read_text())
         by_group.setdefault((ident["config"], ident["method"], ident["region"]), []).append(run)
 
+    curves_of = {key: [read_curve(r / "curve.csv") for r in sorted(group)] for key, group in by_group.items()}
     for (config, method, region_name), group in sorted(by_group.items()):
         region = regions[region_name]
-        curves = [read_curve(r / "curve.csv") for r in sorted(group)]
+        curves = curves_of[(config, method, region_name)]
         tag = f"{config}_{method}_{region_name}"
         label = f"{'SW' if method == 'sw' else 'CR'}-MARL, {region_name}, {config} config"
         written.append(plots.reward_curves(curves, method, fig / f"fig_{tag}_reward.png", label))
@@ -44,12 +46,13 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
         metrics = json.loads((metrics_dir / "runs" / f"{first.name}.json").read_text())
         xy = np.array(metrics["example"]["final_positions"])
         trails = np.array(metrics["example"]["trajectory"])
-        env = eval_env(region, run_config(params, config, method), 1)
+        patch = start_patch(region.polygon, params.world.start_patch)
         cov = metrics["coverage"]
-        note = f"seed {metrics['seed']}, evaluation coverage {cov['mean']:.2f} (100 episodes)"
-        written.append(plots.spread(region.polygon, env.patch, xy, c.radius, c.edges, fig / f"fig_{tag}_spread.png",
+        note = f"seed {metrics['seed']}, evaluation coverage {cov['mean']:.2f} ({cov['n']} episodes)"
+        written.append(plots.spread(region.polygon, patch, xy, c.radius, c.edges, fig / f"fig_{tag}_spread.png",
                                     f"{label}: final positions of an evaluation episode", trails, note))
-        written.append(plots.diagnostics(curves[0], fig / f"fig_{tag}_diagnostics.png", f"{label}, seed 0"))
+        written.append(plots.diagnostics(curves[0], fig / f"fig_{tag}_diagnostics.png",
+                                         f"{label}, seed {metrics['seed']}"))
         if config == "paper" and method == "cr" and region_name == "square":
             written.append(plots.overall_coverage(region.polygon, xy, c.radius, c.edges,
                                                   fig / "fig_overall_coverage.png", label))
@@ -57,8 +60,7 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
     for config in params.configs:
         for region_name, region in regions.items():
             curves_by_method = {
-                f"{m.upper()}-MARL": [read_curve(r / "curve.csv") for r in by_group.get((config, m, region_name), [])]
-                for m in params.methods
+                f"{m.upper()}-MARL": curves_of.get((config, m, region_name), []) for m in params.methods
             }
             curves_by_method = {k: v for k, v in curves_by_method.items() if v}
             if not curves_by_method:

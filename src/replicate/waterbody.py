@@ -16,11 +16,13 @@ import dataclasses
 import math
 from pathlib import Path
 
+import numpy as np
 from shapely import affinity
 
 from . import artifacts, plots
 from .config import Params, run_config
-from .evaluate import eval_env, evaluate_baseline, evaluate_run
+from .env import start_patch
+from .evaluate import evaluate_baseline, evaluate_run
 from .osm import OSMUnavailable, outline_from_osm_xml, query_osm
 from .regions import Region, RegionError, check_polygon, region_from_file
 from .train import train
@@ -81,11 +83,9 @@ def cover(
     method = evaluate_run(out / "run", params, region)
     lloyd = evaluate_baseline("lloyd_converged", params, region, config)
     c = params.coverage
-    env = eval_env(region, rc, 1)
     xy = method["example"]["final_positions"]
-    import numpy as np
-
-    plots.spread(region.polygon, env.patch, np.array(xy), c.radius, c.edges, out / "spread.png",
+    patch = start_patch(region.polygon, params.world.start_patch)
+    plots.spread(region.polygon, patch, np.array(xy), c.radius, c.edges, out / "spread.png",
                  f"CR-MARL ({config}) on {region.name}: final positions of an evaluation episode",
                  np.array(method["example"]["trajectory"]),
                  f"coverage {method['coverage']['mean']:.2f}, Lloyd {lloyd['coverage']['mean']:.2f}")
