@@ -18,7 +18,7 @@ from replicate import baselines, evaluate, regression
 from replicate.artifacts import CheckpointError
 from replicate.config import load_params, run_config
 from replicate.maddpg import MADDPG
-from replicate.train import Trainer, load_actors, make_env, train
+from replicate.train import Trainer, load_actors, make_env, run_identity, train
 
 from .conftest import ROOT
 
@@ -77,10 +77,10 @@ def test_short_cr_run_learns(params, regions, tmp_path):
     assert result["trained"][1] > random + 0.1
 
 
-def small_trainer(params, region, out, seed=0, episodes=20):
+def small_trainer(params, region, out, seed=0, episodes=20, **algo_changes):
     rc = run_config(params, "tuned", "cr")
     algo = dataclasses.replace(rc.algo, n_envs=10, maddpg=dataclasses.replace(rc.algo.maddpg, learning_starts=500,
-                                                                                batch_size=32))
+                                                                                batch_size=32), **algo_changes)
     return Trainer(dataclasses.replace(rc, algo=algo), region, episodes, seed, Path(out), 10, progress=False)
 
 
@@ -92,6 +92,36 @@ def test_run_writes_curve_checkpoint_actors(params, regions, tmp_path):
     curve = evaluate.read_curve(tmp_path / "run" / "curve.csv")
     assert list(curve["episode"]) == list(range(20))
     assert not list(tmp_path.glob("run/.*.tmp")), "no temporary file is left behind"
+
+
+def test_selection_keeps_the_best_validated_actors(params, regions, tmp_path):
+    """With select_every, actors.pt holds the actors of the best validation, and they score that again."""
+    trainer = small_trainer(params, regions["square"], tmp_path / "run", episodes=60, select_every=10,
+                            select_episodes=6)
+    summary = trainer.run()
+    val = evaluate.read_curve(tmp_path / "run" / "validation.csv")
+    assert list(val["episode"]) == [10, 20, 30, 40, 50, 60]
+    best = len(val["coverage"]) - 1 - int(np.argmax(val["coverage"][::-1]))  # ties go to the later one
+    assert summary["selected_episode"] == val["episode"][best]
+    assert summary["selected_validation_coverage"] == pytest.approx(val["coverage"][best], abs=1e-6)
+    net, meta = load_actors(tmp_path / "run" / "actors.pt")
+    assert meta["selected_episode"] == summary["selected_episode"]
+    trainer.agent.actor.load_state_dict(meta["actor"])
+    assert trainer.validate(60) == summary["selected_validation_coverage"]
+    # the validation starts are the run's own, not the evaluation seed's
+    assert trainer.val_seed != params.evaluate.seed
+
+
+def test_union_weight_sets_c2_and_the_run_identity(params, regions):
+    rc = run_config(params, "tuned", "cr")
+    expected = params.cr_reward.c2 if rc.algo.union_weight is None else rc.algo.union_weight
+    assert make_env(regions["square"], rc, 1, 0).cr.c2 == expected
+    heavy = dataclasses.replace(rc, algo=dataclasses.replace(rc.algo, union_weight=123.0))
+    assert make_env(regions["square"], heavy, 1, 0).cr.c2 == 123.0
+    assert run_identity(heavy, regions["square"], 10, 0) != run_identity(rc, regions["square"], 10, 0)
+    # options at their neutral default stay out of the identity, so adding one keeps finished runs valid
+    paper = run_identity(run_config(params, "paper", "cr"), regions["square"], 10, 0)
+    assert not {"union_weight", "select_every", "select_episodes"} & set(paper["params"]["algo"])
 
 
 def test_corrupt_and_mismatched_checkpoints_are_refused(params, regions, tmp_path):
@@ -122,7 +152,7 @@ SMALL = ["--set", "configs.tuned.n_envs=10", "--set", "configs.tuned.maddpg.lear
 
 def test_killed_run_resumes_to_the_same_curve(tmp_path):
     """Kill a run after its first checkpoints; --resume finishes it with the curve of an uninterrupted run."""
-    common = [*SMALL, "train", "--config", "tuned", "--method", "cr", "--region", "square", "--episodes", "80",
+    common = [*SMALL, "--set", "configs.tuned.select_every=20", "train", "--config", "tuned", "--method", "cr", "--region", "square", "--episodes", "80",
               "--seed", "4", "--checkpoint-every", "10", "--no-progress"]
     assert cli(*common, "--out", str(tmp_path / "whole")).wait(timeout=600) == 0
 
@@ -142,6 +172,10 @@ def test_killed_run_resumes_to_the_same_curve(tmp_path):
     resumed = evaluate.read_curve(tmp_path / "cut" / "curve.csv")
     for column in ("team_reward", "coverage", "critic_loss"):
         np.testing.assert_array_equal(resumed[column], whole[column])
+    assert (tmp_path / "cut" / "validation.csv").read_text() == (tmp_path / "whole" / "validation.csv").read_text()
+    for a, b in zip(load_actors(tmp_path / "cut" / "actors.pt")[0].parameters(),
+                    load_actors(tmp_path / "whole" / "actors.pt")[0].parameters()):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
 
 
 def test_cli_train_and_evaluate_with_baseline(tmp_path):

@@ -96,6 +96,11 @@ class AlgoConfig:
     union_credit: Literal["shared", "difference"]
     n_envs: int
     maddpg: MADDPGConfig
+    # Options added after the paper runs. At their neutral default they are left out of a run's identity
+    # (``to_dict(..., drop_defaults=True)``), so adding one does not invalidate finished runs.
+    union_weight: float | None = None  # c2 of eq. (6) for this config; None = cr_reward.c2
+    select_every: int = 0  # episodes between validation rollouts that pick the kept actors; 0 = keep the last
+    select_episodes: int = 20  # validation episodes (fixed starts, deterministic policy) per selection
 
 
 @dataclass(frozen=True)
@@ -293,12 +298,19 @@ def run_config(params: Params, config: str, method: str) -> RunConfig:
     )
 
 
-def to_dict(obj: Any) -> Any:
-    """A dataclass as plain JSON/YAML-friendly data (tuples become lists)."""
+def to_dict(obj: Any, drop_defaults: bool = False) -> Any:
+    """A dataclass as plain JSON/YAML-friendly data (tuples become lists). ``drop_defaults`` leaves out fields
+    that have a default and hold it: the form used for run identities."""
     if dataclasses.is_dataclass(obj):
-        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+        out = {}
+        for f in dataclasses.fields(obj):
+            value = getattr(obj, f.name)
+            if drop_defaults and f.default is not dataclasses.MISSING and value == f.default:
+                continue
+            out[f.name] = to_dict(value, drop_defaults)
+        return out
     if isinstance(obj, dict):
-        return {k: to_dict(v) for k, v in obj.items()}
+        return {k: to_dict(v, drop_defaults) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [to_dict(v) for v in obj]
+        return [to_dict(v, drop_defaults) for v in obj]
     return obj

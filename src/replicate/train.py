@@ -2,11 +2,14 @@
 
 A run directory holds ``run.json`` (what was run), ``curve.csv`` (one row per episode), ``checkpoint.pt``
 (everything needed to continue: networks, optimisers, replay buffer, generator states, the curve so far) and,
-at the end, ``actors.pt`` (the trained decentralised policies).
+at the end, ``actors.pt`` (the trained decentralised policies: the last ones, or with ``select_every`` the best on
+the run's fixed validation starts, whose coverage is logged in ``validation.csv``).
 """
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -48,7 +51,7 @@ def run_identity(rc: RunConfig, region: Region, episodes: int, seed: int) -> dic
         "region_key": region_key(region.polygon),
         "seed": seed,
         "episodes": episodes,
-        "params": to_dict(rc),
+        "params": to_dict(rc, drop_defaults=True),
     }
 
 
@@ -64,16 +67,20 @@ def finished_run(out: str | Path, identity: dict) -> dict | None:
     return summary if same and summary.get("status") == "finished" else None
 
 
-def make_env(region: Region, rc: RunConfig, n_envs: int, seed) -> CoverageEnv:
-    """The training environment of a run config (reward, observation, geofence, credit from params.yaml)."""
+def make_env(region: Region, rc: RunConfig, n_envs: int, seed, reward: bool = True) -> CoverageEnv:
+    """The training environment of a run config (reward, observation, geofence, credit from params.yaml);
+    ``reward=False`` gives the same world without reward, for validation rollouts."""
+    cr = rc.cr_reward
+    if rc.algo.union_weight is not None:
+        cr = dataclasses.replace(cr, c2=rc.algo.union_weight)
     return CoverageEnv(
         region,
         rc.world,
         rc.coverage,
         n_envs=n_envs,
-        reward=rc.method.reward,
+        reward=rc.method.reward if reward else None,
         sw=rc.sw_reward,
-        cr=rc.cr_reward,
+        cr=cr,
         observation=rc.algo.observation,
         geofence=rc.algo.geofence,
         union_credit=rc.algo.union_credit,
@@ -101,8 +108,13 @@ class Trainer:
         if self.episodes % algo.n_envs:
             raise ConfigError(f"episodes ({self.episodes}) must be a multiple of n_envs ({algo.n_envs})")
         self.out = Path(self.out)
-        seeds = np.random.SeedSequence(self.seed).spawn(3)
+        seeds = np.random.SeedSequence(self.seed).spawn(4)
         self.env = make_env(self.region, self.rc, algo.n_envs, seeds[0])
+        # validation starts: fixed per run, drawn apart from the evaluation seed so selection cannot fit it
+        self.val_seed = int(seeds[3].generate_state(1)[0])
+        self.val_env = make_env(self.region, self.rc, algo.select_episodes, self.val_seed, reward=False)
+        self.validation: list[list[float]] = []  # [episode, validation coverage]
+        self.best: dict | None = None  # {"episode", "coverage", "actor"}: the actors kept when selecting
         self.noise_rng = np.random.default_rng(seeds[1])
         self.sample_rng = np.random.default_rng(seeds[2])
         n, od = self.env.n_agents, self.env.obs_dim
@@ -167,6 +179,8 @@ class Trainer:
             bar.update(n_env)
             bar.set_postfix(reward=f"{returns.mean():.1f}", coverage=f"{coverage.mean():.2f}")
             done = (batch + 1) * n_env
+            if algo.select_every and done % algo.select_every < n_env:
+                self.validate(done)
             if done % self.checkpoint_every < n_env and done < self.episodes:
                 self.wall = time.perf_counter() - t0
                 self.save_checkpoint()
@@ -183,8 +197,26 @@ class Trainer:
             "transitions": self.transitions,
             "final_coverage_last100": float(np.mean([r[n + 2] for r in self.rows[-100:]])),
         }
+        if self.best is not None:
+            summary["selected_episode"] = self.best["episode"]
+            summary["selected_validation_coverage"] = self.best["coverage"]
         artifacts.write_json(self.out / "run.json", summary)
         return summary
+
+    # ---- selection of the kept actors ------------------------------------------------------------------
+    def validate(self, episode: int) -> float:
+        """Coverage of the current deterministic actors on the run's fixed validation starts; keeps a copy of
+        the actors when it is the best so far (ties go to the later one)."""
+        env = self.val_env
+        obs = env.reset(self.val_seed)
+        for _ in range(self.rc.world.episode_length):
+            action, _ = self.agent.act(obs, 0.0, self.noise_rng)
+            obs = env.step(action).obs
+        coverage = float(env.coverage_fraction().mean())
+        self.validation.append([episode, coverage])
+        if self.best is None or coverage >= self.best["coverage"]:
+            self.best = {"episode": episode, "coverage": coverage, "actor": copy.deepcopy(self.agent.actor.state_dict())}
+        return coverage
 
     # ---- persistence ------------------------------------------------------------------------------------
     def save_checkpoint(self) -> None:
@@ -206,7 +238,11 @@ class Trainer:
             "wall": self.wall,
             "updates": self.updates,
             "update_seconds": self.update_seconds,
+            "validation": self.validation,
+            "best": self.best,
         }
+        if self.rc.algo.select_every:
+            artifacts.write_csv(self.out / "validation.csv", ["episode", "coverage"], self.validation)
         artifacts.torch_save(self.out / "checkpoint.pt", state)
 
     def load_checkpoint(self) -> None:
@@ -228,6 +264,8 @@ class Trainer:
             self.wall = float(state["wall"])
             self.updates = int(state["updates"])
             self.update_seconds = float(state["update_seconds"])
+            self.validation = [list(r) for r in state["validation"]]
+            self.best = state["best"]
         except (KeyError, RuntimeError, ValueError, TypeError) as exc:
             raise CheckpointError(f"{path}: checkpoint is incomplete or mismatched ({exc})") from exc
 
@@ -240,7 +278,8 @@ class Trainer:
                 "observation": self.rc.algo.observation,
                 "obs_dim": self.env.obs_dim,
                 "hidden": self.rc.algo.maddpg.hidden,
-                "actor": self.agent.actor.state_dict(),
+                "actor": self.best["actor"] if self.best is not None else self.agent.actor.state_dict(),
+                "selected_episode": None if self.best is None else self.best["episode"],
             },
         )
 
