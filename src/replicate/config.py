@@ -156,6 +156,18 @@ class EvaluateConfig:
 
 
 @dataclass(frozen=True)
+class AblationConfig:
+    """Leave-one-out ablation of ``base``: for each change, a config equal to ``base`` except that the change's
+    keys (dotted, inside a config) take ``reference``'s values. Named ``{base}-without-{change}``."""
+
+    base: str
+    reference: str
+    method: str
+    regions: tuple[str, ...]
+    changes: dict[str, tuple[str, ...]]
+
+
+@dataclass(frozen=True)
 class Params:
     """Everything in ``params.yaml``. Stage-specific sections the package does not read are kept as mappings."""
 
@@ -169,7 +181,55 @@ class Params:
     train: TrainConfig
     regression: RegressionConfig
     evaluate: EvaluateConfig
+    ablation: AblationConfig
     stages: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        ab = self.ablation
+        for name in (ab.base, ab.reference):
+            if name not in self.configs:
+                raise ConfigError(f"ablation: unknown config {name!r}; known: {sorted(self.configs)}")
+        if ab.method not in self.methods:
+            raise ConfigError(f"ablation.method: unknown method {ab.method!r}")
+        unknown = sorted(set(ab.regions) - set(self.regions))
+        if unknown:
+            raise ConfigError(f"ablation.regions: unknown region(s) {unknown}")
+        for change in ab.changes:
+            ablation_config(self, change)  # every key must exist
+
+    def all_configs(self) -> dict[str, AlgoConfig]:
+        """The written configs plus one derived config per ablation change."""
+        derived = {f"{self.ablation.base}-without-{c}": ablation_config(self, c) for c in self.ablation.changes}
+        return {**self.configs, **derived}
+
+
+SELECTION_KEYS = ("select_every", "select_episodes")
+
+
+def selection_only(params: Params, change: str) -> bool:
+    """A change that only picks which actors are kept: its "without" run is the base run itself (training is
+    identical), evaluated with its last actors instead of the selected ones."""
+    return set(params.ablation.changes[change]) <= set(SELECTION_KEYS)
+
+
+def ablation_config(params: Params, change: str) -> AlgoConfig:
+    """``ablation.base`` with the keys of ``change`` set to their values in ``ablation.reference``."""
+    ab = params.ablation
+    if change not in ab.changes:
+        raise ConfigError(f"unknown ablation change {change!r}; known: {sorted(ab.changes)}")
+    base = to_dict(params.configs[ab.base])
+    ref = to_dict(params.configs[ab.reference])
+    for dotted in ab.changes[change]:
+        node, src = base, ref
+        keys = dotted.split(".")
+        for k in keys[:-1]:
+            if not isinstance(node.get(k), dict):
+                raise ConfigError(f"ablation.changes.{change}: no section {k!r} in {dotted!r}")
+            node, src = node[k], src[k]
+        if keys[-1] not in node:
+            raise ConfigError(f"ablation.changes.{change}: unknown key {dotted!r}")
+        node[keys[-1]] = src[keys[-1]]
+    return from_mapping(AlgoConfig, base, f"ablation {change}")
 
 
 # Top-level sections that belong to pipeline stages (dvc.yaml) and are validated there.
@@ -281,9 +341,10 @@ def load_params(path: str | Path = DEFAULT_PARAMS, overrides: Mapping[str, Any] 
 
 
 def run_config(params: Params, config: str, method: str) -> RunConfig:
-    """Select one configuration (``paper``/``tuned``) and method (``sw``/``cr``)."""
-    if config not in params.configs:
-        raise ConfigError(f"unknown config {config!r}; known: {sorted(params.configs)}")
+    """Select one configuration (``paper``/``tuned``/an ablation of it) and method (``sw``/``cr``)."""
+    configs = params.all_configs()
+    if config not in configs:
+        raise ConfigError(f"unknown config {config!r}; known: {sorted(configs)}")
     if method not in params.methods:
         raise ConfigError(f"unknown method {method!r}; known: {sorted(params.methods)}")
     return RunConfig(
@@ -292,7 +353,7 @@ def run_config(params: Params, config: str, method: str) -> RunConfig:
         sw_reward=params.sw_reward,
         cr_reward=params.cr_reward,
         method=params.methods[method],
-        algo=params.configs[config],
+        algo=configs[config],
         config_name=config,
         method_name=method,
     )

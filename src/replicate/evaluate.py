@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from . import artifacts, baselines, metrics
-from .config import ConfigError, Params, RunConfig, load_params, run_config
+from .config import ConfigError, Params, RunConfig, load_params, run_config, selection_only
 from .env import CoverageEnv
 from .regions import Region, make_region
 from .train import load_actors
@@ -71,10 +71,13 @@ def read_curve(path: str | Path) -> dict[str, np.ndarray]:
     return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
 
 
-def evaluate_run(run_dir: str | Path, params: Params, region: Region) -> dict:
-    """Metrics of a finished run: deterministic evaluation plus convergence from its training curve."""
+def evaluate_run(run_dir: str | Path, params: Params, region: Region, actors: str = "actors.pt",
+                 as_config: str | None = None) -> dict:
+    """Metrics of a finished run: deterministic evaluation plus convergence from its training curve.
+    ``actors``/``as_config`` evaluate another actors file of the run and file it under another config name
+    (the last actors of a selecting run are its "without selection" ablation)."""
     run_dir = Path(run_dir)
-    net, meta = load_actors(run_dir / "actors.pt")
+    net, meta = load_actors(run_dir / actors)
     ident = meta["identity"]
     rc = run_config(params, ident["config"], ident["method"])
     ev = params.evaluate
@@ -90,7 +93,7 @@ def evaluate_run(run_dir: str | Path, params: Params, region: Region) -> dict:
     run = json.loads((run_dir / "run.json").read_text())
     out.update(
         kind="run",
-        config=ident["config"],
+        config=as_config or ident["config"],
         method=ident["method"],
         region=ident["region"],
         seed=ident["seed"],
@@ -144,11 +147,27 @@ def _evaluate_one(job: dict) -> tuple[str, dict]:
     params = load_params(job["params"])
     region = make_region(job["region"], params.regions[job["region"]], params.world.region_area)
     if "run" in job:
-        result = evaluate_run(job["run"], params, region)
+        result = evaluate_run(job["run"], params, region, job.get("actors", "actors.pt"), job.get("as_config"))
     else:
         result = evaluate_baseline(job["baseline"], params, region)
     artifacts.write_json(job["out"], result)
     return job["out"], result
+
+
+def selection_ablation_jobs(params_path: str, run: Path, ident: dict, metrics_dir: Path) -> list[dict]:
+    """Evaluation jobs for the selection-only ablation changes: the base run's last actors, filed under the
+    ablation config's name (its training is the base run's, step for step)."""
+    params = load_params(params_path)
+    ab = params.ablation
+    if not (ident["config"] == ab.base and ident["method"] == ab.method and ident["region"] in ab.regions
+            and (run / "actors_last.pt").exists()):
+        return []
+    jobs = []
+    for change in (c for c in ab.changes if selection_only(params, c)):
+        name = f"{ab.base}-without-{change}"
+        jobs.append({"params": params_path, "run": str(run), "region": ident["region"], "actors": "actors_last.pt",
+                     "as_config": name, "out": str(metrics_dir / "runs" / f"{run.name.replace(ab.base, name, 1)}.json")})
+    return jobs
 
 
 def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, workers: int) -> dict:
@@ -162,6 +181,7 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
                             zip(curve["episode"].astype(int), curve["team_reward"], curve["coverage"]))
         jobs.append({"params": params_path, "run": str(run), "region": ident["region"],
                      "out": str(metrics_dir / "runs" / f"{run.name}.json")})
+        jobs += selection_ablation_jobs(params_path, run, ident, metrics_dir)
     for region in regions:
         for name in BASELINES:
             jobs.append({"params": params_path, "baseline": name, "region": region,

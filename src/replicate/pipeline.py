@@ -12,7 +12,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from . import artifacts
-from .config import load_params, run_config
+from .config import load_params, run_config, selection_only
 from .regions import make_region
 
 
@@ -39,15 +39,28 @@ def _train_one(job: dict) -> dict:
     return summary
 
 
-def train_matrix(params_path: str, configs, methods, regions, seeds, episodes: int, runs_dir: str, workers: int):
-    """Train every config × method × region × seed, ``workers`` processes at a time (one per core).
+def ablation_cells(params) -> list[tuple[str, str, str]]:
+    """(config, method, region) of the leave-one-out ablation runs; a selection-only change needs no run of its
+    own (its "without" is the base run's last actors)."""
+    ab = params.ablation
+    return [(f"{ab.base}-without-{c}", ab.method, r) for c in ab.changes if not selection_only(params, c)
+            for r in ab.regions]
+
+
+def train_matrix(params_path: str, configs, methods, regions, seeds, episodes: int, runs_dir: str, workers: int,
+                 ablation: bool = False):
+    """Train every config × method × region × seed, ``workers`` processes at a time (one per core), then with
+    ``ablation`` the runs of ``params.ablation`` (same seeds and episodes).
 
     Run again, the matrix skips runs already finished with identical settings and resumes interrupted ones
     from their checkpoints, so adding seeds or a configuration trains only what is new."""
+    cells = [(c, m, r) for c in configs for m in methods for r in regions]
+    if ablation:
+        cells += ablation_cells(load_params(params_path))
     jobs = [
         {"params": params_path, "config": c, "method": m, "region": r, "seed": s, "episodes": episodes,
          "out": str(Path(runs_dir) / run_name(c, m, r, s))}
-        for c in configs for m in methods for r in regions for s in seeds
+        for c, m, r in cells for s in seeds
     ]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers) as pool:

@@ -270,18 +270,21 @@ class Trainer:
             raise CheckpointError(f"{path}: checkpoint is incomplete or mismatched ({exc})") from exc
 
     def save_actors(self) -> None:
-        artifacts.torch_save(
-            self.out / "actors.pt",
-            {
-                "format": CHECKPOINT_FORMAT,
-                "identity": self.identity(),
-                "observation": self.rc.algo.observation,
-                "obs_dim": self.env.obs_dim,
-                "hidden": self.rc.algo.maddpg.hidden,
-                "actor": self.best["actor"] if self.best is not None else self.agent.actor.state_dict(),
-                "selected_episode": None if self.best is None else self.best["episode"],
-            },
-        )
+        """``actors.pt``: the kept actors (selected, or the last); with selection also ``actors_last.pt``."""
+        meta = {
+            "format": CHECKPOINT_FORMAT,
+            "identity": self.identity(),
+            "observation": self.rc.algo.observation,
+            "obs_dim": self.env.obs_dim,
+            "hidden": self.rc.algo.maddpg.hidden,
+        }
+        last = {**meta, "actor": self.agent.actor.state_dict(), "selected_episode": None}
+        if self.best is None:
+            artifacts.torch_save(self.out / "actors.pt", last)
+            return
+        artifacts.torch_save(self.out / "actors_last.pt", last)
+        kept = {**meta, "actor": self.best["actor"], "selected_episode": self.best["episode"]}
+        artifacts.torch_save(self.out / "actors.pt", kept)
 
 
 def train(
