@@ -15,6 +15,7 @@ from replicate.config import (
     Params,
     load_params,
     run_config,
+    to_dict,
 )
 
 from .conftest import ROOT
@@ -61,6 +62,9 @@ def write(tmp_path, mutate):
         (lambda r: r["configs"]["paper"]["maddpg"].update(gamma=True), "maddpg.gamma: expected a number"),
         (lambda r: r["sw_reward"].update(prop_range=[0.85]), "prop_range: expected 2 items"),
         (lambda r: r.update(extra={}), r"unknown key\(s\) \['extra'\]"),
+        (lambda r: r["ablation"]["changes"].update(typo=["maddpg.gama"]), "ablation.changes.typo: unknown key"),
+        (lambda r: r["ablation"].update(base="best"), "ablation: unknown config 'best'"),
+        (lambda r: r["ablation"].update(regions=["atlantis"]), "unknown region"),
     ],
 )
 def test_bad_params_are_refused(tmp_path, mutate, message):
@@ -84,3 +88,29 @@ def test_overrides_and_selection(params):
 def test_configs_are_frozen(params):
     with pytest.raises(dataclasses.FrozenInstanceError):
         params.world.n_agents = 3  # type: ignore[misc]
+
+
+def flat(d, prefix=""):
+    for k, v in d.items():
+        if isinstance(v, dict):
+            yield from flat(v, f"{prefix}{k}.")
+        else:
+            yield f"{prefix}{k}", v
+
+
+def test_ablation_covers_every_change_from_paper_to_tuned(params):
+    """Each key where `tuned` differs from `paper` is in exactly one ablation change, and every change differs."""
+    ab = params.ablation
+    base = dict(flat(to_dict(params.configs[ab.base])))
+    ref = dict(flat(to_dict(params.configs[ab.reference])))
+    differing = {k for k in base if base[k] != ref[k]}
+    listed = [k for keys in ab.changes.values() for k in keys]
+    assert sorted(listed) == sorted(set(listed)), "a key belongs to one change only"
+    assert differing == set(listed)
+    deviations = (ROOT / "docs" / "DEVIATIONS.md").read_text()
+    for change, keys in ab.changes.items():
+        derived = dict(flat(to_dict(params.all_configs()[f"{ab.base}-without-{change}"])))
+        assert {k for k in base if derived[k] != base[k]} == set(keys)
+        assert all(derived[k] == ref[k] for k in keys)
+        assert f"(`{change}`)" in deviations, f"docs/DEVIATIONS.md has no row for the {change} change"
+    assert run_config(params, f"{ab.base}-without-geofence", "cr").algo.geofence == ref["geofence"]
