@@ -84,6 +84,7 @@ def test_dvc_repro_end_to_end(tmp_path):
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params["train"].update(episodes=50, seeds=[0, 1], checkpoint_every=50)
     params["pipeline"]["configs"] = ["paper", "tuned"]
+    params["configs"]["tuned"]["select_every"] = 25  # so the checkpoint_selection ablation has last actors
     params["evaluate"].update(episodes=4)
     params["evaluate"]["lloyd"]["converged_steps"] = 60
     params["fetch_outline"]["nominatim_url"] = "http://127.0.0.1:9/"  # nothing listens: OSM is unreachable
@@ -119,7 +120,13 @@ def test_dvc_repro_end_to_end(tmp_path):
     report = (repo / "REPORT.md").read_text()
     assert "The paper's claims" in report and "| baseline | region | coverage" in report
     assert report.count("![") == len(figures)
+    assert "## Targets of the `tuned` configuration" in report
+    ablation = report.split("## Ablation")[1].split("\n## ")[0]
+    for change in params["ablation"]["changes"]:
+        assert f"| `{change}` |" in ablation, f"no ablation row for {change}"
+    assert "fig_ablation_square.png" in figures
     runs = json.loads((repo / "runs" / "summary.json").read_text())["runs"]
-    assert len(runs) == 2 * 2 * 3 * 2
+    trained_changes = len(params["ablation"]["changes"]) - 1  # checkpoint_selection reuses the tuned runs
+    assert len(runs) == 2 * 2 * 3 * 2 + trained_changes * 2
     status = subprocess.run(["dvc", "status"], cwd=repo, env=env, capture_output=True, text=True)
     assert "up to date" in status.stdout, status.stdout

@@ -152,7 +152,8 @@ SMALL = ["--set", "configs.tuned.n_envs=10", "--set", "configs.tuned.maddpg.lear
 
 def test_killed_run_resumes_to_the_same_curve(tmp_path):
     """Kill a run after its first checkpoints; --resume finishes it with the curve of an uninterrupted run."""
-    common = [*SMALL, "--set", "configs.tuned.select_every=20", "train", "--config", "tuned", "--method", "cr", "--region", "square", "--episodes", "80",
+    common = [*SMALL, "--set", "configs.tuned.select_every=20",
+              "train", "--config", "tuned", "--method", "cr", "--region", "square", "--episodes", "80",
               "--seed", "4", "--checkpoint-every", "10", "--no-progress"]
     assert cli(*common, "--out", str(tmp_path / "whole")).wait(timeout=600) == 0
 

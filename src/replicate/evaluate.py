@@ -165,8 +165,9 @@ def selection_ablation_jobs(params_path: str, run: Path, ident: dict, metrics_di
     jobs = []
     for change in (c for c in ab.changes if selection_only(params, c)):
         name = f"{ab.base}-without-{change}"
+        out = metrics_dir / "runs" / f"{run.name.replace(ab.base, name, 1)}.json"
         jobs.append({"params": params_path, "run": str(run), "region": ident["region"], "actors": "actors_last.pt",
-                     "as_config": name, "out": str(metrics_dir / "runs" / f"{run.name.replace(ab.base, name, 1)}.json")})
+                     "as_config": name, "out": str(out)})
     return jobs
 
 
@@ -189,8 +190,32 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
     with ProcessPoolExecutor(max_workers=workers) as pool:
         results = dict(pool.map(_evaluate_one, jobs))
     summary = summarise_metrics(results.values())
+    summary = split_ablation(summary, load_params(params_path))
     artifacts.write_json(metrics_dir / "summary.json", summary)
     return summary
+
+
+def split_ablation(summary: dict, params: Params) -> dict:
+    """Move the ablation groups out of ``runs`` into ``ablation``: one row per change with the base config's
+    coverage (with the change) and the derived config's (without it), each over the same seeds."""
+    ab = params.ablation
+    runs = dict(summary["runs"])
+    rows = {}
+    for change, keys in ab.changes.items():
+        for region in ab.regions:
+            derived = runs.pop(f"{ab.base}-without-{change}/{ab.method}/{region}", None)
+            base = summary["runs"].get(f"{ab.base}/{ab.method}/{region}")
+            if derived is None or base is None:
+                continue
+            rows[f"{change}/{region}"] = {
+                "keys": list(keys),
+                "with": base["coverage"],
+                "without": derived["coverage"],
+                "with_per_seed": base["coverage_per_seed"],
+                "without_per_seed": derived["coverage_per_seed"],
+                "delta": base["coverage"]["mean"] - derived["coverage"]["mean"],
+            }
+    return {**summary, "runs": runs, "ablation": rows}
 
 
 def summarise_metrics(results) -> dict:

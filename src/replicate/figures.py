@@ -33,6 +33,8 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
     by_group: dict[tuple, list] = {}
     for run in runs:
         ident = json.loads((run / "run.json").read_text())
+        if ident["config"] not in params.configs:  # ablation runs: summarised by fig_ablation_*
+            continue
         by_group.setdefault((ident["config"], ident["method"], ident["region"]), []).append(run)
 
     curves_of = {key: [read_curve(r / "curve.csv") for r in sorted(group)] for key, group in by_group.items()}
@@ -71,6 +73,15 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
             written.append(plots.coverage_vs_episode(curves_by_method, base, ceiling,
                                                      fig / f"fig_{config}_coverage_{region_name}.png",
                                                      f"Coverage during training, {region_name}, {config} config"))
+
+    for region_name in params.ablation.regions:
+        rows = {k.split("/")[0]: v for k, v in summary.get("ablation", {}).items() if k.endswith(f"/{region_name}")}
+        if rows:
+            base = {b: summary["baselines"][f"{b}/{region_name}"]["coverage"] for b in ("naive", "lloyd")
+                    if f"{b}/{region_name}" in summary["baselines"]}
+            written.append(plots.ablation(rows, base, fig / f"fig_ablation_{region_name}.png",
+                                          f"{params.ablation.method.upper()}-MARL `{params.ablation.base}` on "
+                                          f"{region_name}: each change removed in turn"))
 
     from .animate import animate_run
 

@@ -163,6 +163,29 @@ def coverage_vs_episode(curves_by_method: dict[str, list[dict]], baselines: dict
     return save(fig, path)
 
 
+def ablation(rows: dict[str, dict], baselines: dict[str, float], path, title: str) -> Path:
+    """Leave-one-out ablation: evaluation coverage with every change (the base config) and without each one,
+    mean over seeds with the 95 % CI as error bars and each seed as a dot; baselines as vertical lines."""
+    names = list(rows)
+    fig, ax = plt.subplots(figsize=(8, 0.45 * len(names) + 1.5))
+    y = np.arange(len(names))
+    for k, r in enumerate(rows.values()):
+        for offset, key, color in ((-0.18, "with", "C0"), (0.18, "without", "C3")):
+            ci = r[key]
+            err = [[ci["mean"] - ci["lo"]], [ci["hi"] - ci["mean"]]] if ci["lo"] == ci["lo"] else None
+            ax.barh(y[k] + offset, ci["mean"], height=0.34, xerr=err, color=color, alpha=0.7,
+                    label=("with the change" if key == "with" else "without it") if k == 0 else None)
+            ax.plot(r[f"{key}_per_seed"], [y[k] + offset] * len(r[f"{key}_per_seed"]), "k.", markersize=3)
+    for i, (name, value) in enumerate(baselines.items()):
+        ax.axvline(value, color="grey", linestyle=("--", "-.", ":")[i % 3], linewidth=1, label=f"{name} {value:.2f}")
+    ax.set_yticks(y, names)
+    ax.set_xlim(0, 1)
+    ax.set_xlabel("evaluation coverage at the last step")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=7, loc="lower right")
+    return save(fig, path)
+
+
 def diagnostics(curve: dict, path, title: str, window: int = 100) -> Path:
     """Learning diagnostics per episode: critic loss, mean |Q|, saturated actions, exploration σ, coverage."""
     keys = [("critic_loss", "critic loss"), ("q_abs", "mean |Q|"), ("saturated", "fraction |a| > 0.99"),

@@ -215,7 +215,8 @@ class Trainer:
         coverage = float(env.coverage_fraction().mean())
         self.validation.append([episode, coverage])
         if self.best is None or coverage >= self.best["coverage"]:
-            self.best = {"episode": episode, "coverage": coverage, "actor": copy.deepcopy(self.agent.actor.state_dict())}
+            actor = copy.deepcopy(self.agent.actor.state_dict())
+            self.best = {"episode": episode, "coverage": coverage, "actor": actor}
         return coverage
 
     # ---- persistence ------------------------------------------------------------------------------------
