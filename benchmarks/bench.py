@@ -1,7 +1,8 @@
 """`make bench`: speed figures, each measured in this one run against a reference run beside it.
 
-1. Time per 1,000 episodes of the paper configuration (CR-MARL and SW-MARL, square), split into environment +
-   geometry + acting and MADDPG updates, and the projected wall time of a full 10,000-episode run.
+1. Time per 1,000 episodes of the paper and tuned configurations (CR-MARL and SW-MARL, square), split into
+   environment + geometry + acting (+ validation) and MADDPG updates, and the projected wall time of a full
+   10,000-episode run (issue 4's budget for `tuned`: 180 s on one core).
 2. One update of all 9 agents: the batched MADDPG against the per-agent loop (``maddpg_loop``), as a ratio.
 3. Environment throughput (agent-steps per second, random actions) against PettingZoo MPE2 ``simple_spread_v3``
    with N = 9 and continuous actions, as a ratio.
@@ -40,9 +41,9 @@ def best_of(fn, repeats=5):
     return min(times)
 
 
-def training_split(params, square, method: str, episodes: int):
+def training_split(params, square, config: str, method: str, episodes: int):
     """(env seconds per 1,000 episodes, seconds per update, projected 10k wall) from a short real run."""
-    rc = run_config(params, "paper", method)
+    rc = run_config(params, config, method)
     with tempfile.TemporaryDirectory() as tmp:
         tr = Trainer(rc, square, episodes, 0, Path(tmp) / "run", checkpoint_every=episodes, progress=False)
         tr.run()
@@ -112,12 +113,13 @@ def main(argv=None) -> int:
     params = load_params("params.yaml")
     square = make_region("square", params.regions["square"], params.world.region_area)
 
-    print("== 1. training time, paper config, square (one thread) ==")
-    for method in ("cr", "sw"):
-        env_s, per_update, upd_1000, full = training_split(params, square, method, args.episodes)
-        print(f"{method.upper()}-MARL: per 1,000 episodes: environment+geometry+acting {env_s:6.1f} s, "
-              f"updates {upd_1000:6.1f} s ({per_update * 1e3:.1f} ms per update of 9 agents); "
-              f"projected 10,000-episode run {full:6.1f} s (target 90 s)")
+    print("== 1. training time, square (one thread) ==")
+    for config, target in (("paper", 90), ("tuned", 180)):
+        for method in ("cr", "sw"):
+            env_s, per_update, upd_1000, full = training_split(params, square, config, method, args.episodes)
+            print(f"{config} {method.upper()}-MARL: per 1,000 episodes: environment+geometry+acting {env_s:6.1f} s, "
+                  f"updates {upd_1000:6.1f} s ({per_update * 1e3:.1f} ms per update of 9 agents); "
+                  f"projected 10,000-episode run {full:6.1f} s (target {target} s)")
 
     print("== 2. one MADDPG update of 9 agents, batch 1024 ==")
     tb, tl = update_ratio(params)
