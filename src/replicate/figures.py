@@ -53,8 +53,11 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
         note = f"seed {metrics['seed']}, evaluation coverage {cov['mean']:.2f} ({cov['n']} episodes)"
         written.append(plots.spread(region.polygon, patch, xy, c.radius, c.edges, fig / f"fig_{tag}_spread.png",
                                     f"{label}: final positions of an evaluation episode", trails, note))
-        written.append(plots.diagnostics(curves[0], fig / f"fig_{tag}_diagnostics.png",
-                                         f"{label}, seed {metrics['seed']}"))
+        validation = [read_curve(r / "validation.csv") if (r / "validation.csv").exists() else None
+                      for r in sorted(group)]
+        seeds = [json.loads((r / "run.json").read_text())["seed"] for r in sorted(group)]
+        written.append(plots.diagnostics(curves, fig / f"fig_{tag}_diagnostics.png", f"{label}, every seed",
+                                         validation=validation, seeds=seeds))
         if config == "paper" and method == "cr" and region_name == "square":
             written.append(plots.overall_coverage(region.polygon, xy, c.radius, c.edges,
                                                   fig / "fig_overall_coverage.png", label))

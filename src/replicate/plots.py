@@ -186,21 +186,35 @@ def ablation(rows: dict[str, dict], baselines: dict[str, float], path, title: st
     return save(fig, path)
 
 
-def diagnostics(curve: dict, path, title: str, window: int = 100) -> Path:
-    """Learning diagnostics per episode: critic loss, mean |Q|, saturated actions, exploration σ, coverage."""
+def diagnostics(curves: list[dict], path, title: str, window: int = 100,
+                validation: list[dict | None] | None = None, seeds: list[int] | None = None) -> Path:
+    """Learning diagnostics per episode for every seed of a group (one colour per seed, raw values faint,
+    ``window``-episode moving average bold): critic loss, mean |Q|, saturated actions, exploration σ, training
+    coverage, plus the validation coverage of the checkpoint selection where a run has one."""
     keys = [("critic_loss", "critic loss"), ("q_abs", "mean |Q|"), ("saturated", "fraction |a| > 0.99"),
             ("noise", "exploration σ"), ("coverage", "coverage")]
     fig, axes = plt.subplots(len(keys), 1, figsize=(8, 9), sharex=True)
-    for ax, (key, label) in zip(axes, keys):
-        y = np.asarray(curve[key], dtype=float)
-        ax.plot(curve["episode"], y, color="0.7", linewidth=0.5)
-        ok = ~np.isnan(y)
-        if ok.sum() >= window:
-            ma = moving_average(y[ok], window)
-            ax.plot(np.asarray(curve["episode"])[ok][window - 1:], ma, color="C3", linewidth=1)
-        ax.set_ylabel(label, fontsize=8)
-        if key == "critic_loss" and np.nanmax(y, initial=0) > 0:
-            ax.set_yscale("log")
+    for k, curve in enumerate(curves):
+        for ax, (key, label) in zip(axes, keys):
+            y = np.asarray(curve[key], dtype=float)
+            x = np.asarray(curve["episode"])
+            ax.plot(x, y, color=f"C{k}", linewidth=0.3, alpha=0.25)
+            ok = ~np.isnan(y)
+            if ok.sum() >= window:
+                ax.plot(x[ok][window - 1:], moving_average(y[ok], window), color=f"C{k}", linewidth=1,
+                        label=f"seed {(seeds or range(len(curves)))[k]}" if key == "critic_loss" else None)
+            ax.set_ylabel(label, fontsize=8)
+            if key == "critic_loss" and np.nanmax(y, initial=0) > 0:
+                ax.set_yscale("log")
+            else:
+                ax.ticklabel_format(axis="y", useOffset=False)
+        val = (validation or [None] * len(curves))[k]
+        if val is not None:
+            axes[-1].plot(val["episode"], val["coverage"], "o-", color=f"C{k}", markersize=2, linewidth=0.6,
+                          label="validation (deterministic)" if k == 0 else None)
+    axes[0].legend(fontsize=7, loc="upper right")
+    if validation and any(v is not None for v in validation):
+        axes[-1].legend(fontsize=7, loc="lower right")
     axes[-1].set_xlabel("episode")
     axes[0].set_title(title, fontsize=10)
     return save(fig, path)
