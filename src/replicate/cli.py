@@ -65,6 +65,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         f"(seed {args.seed}) in {wall:.1f} s wall ({summary['wall_seconds']:.1f} s in the training loop); "
         f"coverage over the last 100 training episodes {summary['final_coverage_last100']:.3f}; wrote {out}/"
     )
+    if "selected_episode" in summary:
+        print(f"kept the actors of episode {summary['selected_episode']} (validation coverage "
+              f"{summary['selected_validation_coverage']:.3f}; the last ones are in actors_last.pt)")
     return 0
 
 
