@@ -220,16 +220,23 @@ def ablation_config(params: Params, change: str) -> AlgoConfig:
     base = to_dict(params.configs[ab.base])
     ref = to_dict(params.configs[ab.reference])
     for dotted in ab.changes[change]:
-        node, src = base, ref
-        keys = dotted.split(".")
-        for k in keys[:-1]:
-            if not isinstance(node.get(k), dict):
-                raise ConfigError(f"ablation.changes.{change}: no section {k!r} in {dotted!r}")
-            node, src = node[k], src[k]
-        if keys[-1] not in node:
-            raise ConfigError(f"ablation.changes.{change}: unknown key {dotted!r}")
-        node[keys[-1]] = src[keys[-1]]
+        node, key = dotted_parent(base, dotted, f"ablation.changes.{change}")
+        src, _ = dotted_parent(ref, dotted, f"ablation.changes.{change}")
+        node[key] = src[key]
     return from_mapping(AlgoConfig, base, f"ablation {change}")
+
+
+def dotted_parent(tree: dict, dotted: str, where: str) -> tuple[dict, str]:
+    """The mapping that holds the existing key ``a.b.c`` of a nested mapping, and its last part ``c``."""
+    *sections, key = dotted.split(".")
+    node = tree
+    for k in sections:
+        if not isinstance(node.get(k), dict):
+            raise ConfigError(f"{where}: no section {k!r} in {dotted!r}")
+        node = node[k]
+    if key not in node:
+        raise ConfigError(f"{where}: unknown key {key!r} in {dotted!r}")
+    return node, key
 
 
 # Top-level sections that belong to pipeline stages (dvc.yaml) and are validated there.
@@ -326,15 +333,8 @@ def load_params(path: str | Path = DEFAULT_PARAMS, overrides: Mapping[str, Any] 
     if not isinstance(raw, dict):
         raise ConfigError(f"{path}: expected a mapping at the top level")
     for dotted, value in (overrides or {}).items():
-        node = raw
-        keys = dotted.split(".")
-        for k in keys[:-1]:
-            if not isinstance(node.get(k), dict):
-                raise ConfigError(f"override {dotted!r}: no section {k!r}")
-            node = node[k]
-        if keys[-1] not in node:
-            raise ConfigError(f"override {dotted!r}: unknown key {keys[-1]!r}")
-        node[keys[-1]] = value
+        node, key = dotted_parent(raw, dotted, f"override {dotted!r}")
+        node[key] = value
     stages = {k: raw.pop(k) for k in STAGE_SECTIONS if k in raw}
     params = from_mapping(Params, raw, str(path))
     return dataclasses.replace(params, stages=stages)

@@ -154,10 +154,9 @@ def _evaluate_one(job: dict) -> tuple[str, dict]:
     return job["out"], result
 
 
-def selection_ablation_jobs(params_path: str, run: Path, ident: dict, metrics_dir: Path) -> list[dict]:
+def selection_ablation_jobs(params_path: str, params: Params, run: Path, ident: dict, metrics_dir: Path) -> list:
     """Evaluation jobs for the selection-only ablation changes: the base run's last actors, filed under the
     ablation config's name (its training is the base run's, step for step)."""
-    params = load_params(params_path)
     ab = params.ablation
     if not (ident["config"] == ab.base and ident["method"] == ab.method and ident["region"] in ab.regions
             and (run / "actors_last.pt").exists()):
@@ -174,6 +173,7 @@ def selection_ablation_jobs(params_path: str, run: Path, ident: dict, metrics_di
 def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, workers: int) -> dict:
     """SPEC §8 metrics of every run in ``runs_dir`` and of every baseline on every region; a summary table."""
     metrics_dir = Path(metrics_dir)
+    params = load_params(params_path)
     jobs = []
     for run in sorted(p for p in Path(runs_dir).iterdir() if (p / "actors.pt").exists()):
         ident = json.loads((run / "run.json").read_text())
@@ -182,7 +182,7 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
                             zip(curve["episode"].astype(int), curve["team_reward"], curve["coverage"]))
         jobs.append({"params": params_path, "run": str(run), "region": ident["region"],
                      "out": str(metrics_dir / "runs" / f"{run.name}.json")})
-        jobs += selection_ablation_jobs(params_path, run, ident, metrics_dir)
+        jobs += selection_ablation_jobs(params_path, params, run, ident, metrics_dir)
     for region in regions:
         for name in BASELINES:
             jobs.append({"params": params_path, "baseline": name, "region": region,
@@ -190,7 +190,7 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
     with ProcessPoolExecutor(max_workers=workers) as pool:
         results = dict(pool.map(_evaluate_one, jobs))
     summary = summarise_metrics(results.values())
-    summary = split_ablation(summary, load_params(params_path))
+    summary = split_ablation(summary, params)
     artifacts.write_json(metrics_dir / "summary.json", summary)
     return summary
 

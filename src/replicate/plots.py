@@ -195,9 +195,9 @@ def diagnostics(curves: list[dict], path, title: str, window: int = 100,
             ("noise", "exploration σ"), ("coverage", "coverage")]
     fig, axes = plt.subplots(len(keys), 1, figsize=(8, 9), sharex=True)
     for k, curve in enumerate(curves):
+        x = np.asarray(curve["episode"])
         for ax, (key, label) in zip(axes, keys):
             y = np.asarray(curve[key], dtype=float)
-            x = np.asarray(curve["episode"])
             ax.plot(x, y, color=f"C{k}", linewidth=0.3, alpha=0.25)
             ok = ~np.isnan(y)
             if ok.sum() >= window:

@@ -112,7 +112,8 @@ class Trainer:
         self.env = make_env(self.region, self.rc, algo.n_envs, seeds[0])
         # validation starts: fixed per run, drawn apart from the evaluation seed so selection cannot fit it
         self.val_seed = int(seeds[3].generate_state(1)[0])
-        self.val_env = make_env(self.region, self.rc, algo.select_episodes, self.val_seed, reward=False)
+        self.val_env = (make_env(self.region, self.rc, algo.select_episodes, self.val_seed, reward=False)
+                        if algo.select_every else None)
         self.validation: list[list[float]] = []  # [episode, validation coverage]
         self.best: dict | None = None  # {"episode", "coverage", "actor"}: the actors kept when selecting
         self.noise_rng = np.random.default_rng(seeds[1])
