@@ -70,7 +70,7 @@ def test_gradient_clip_and_soft_update(params):
         torch.testing.assert_close(t.detach(), 0.99 * b + 0.01 * p.detach())
     a = BatchedMLP(2, [2, 4, 1], torch.Generator().manual_seed(0))
     b = BatchedMLP(2, [2, 4, 1], torch.Generator().manual_seed(1))
-    soft_update(a, b, 1.0)
+    soft_update(list(a.parameters()), list(b.parameters()), 1.0)
     for p, q in zip(a.parameters(), b.parameters()):
         torch.testing.assert_close(p, q)
 

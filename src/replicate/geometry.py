@@ -189,7 +189,8 @@ class CoverageGeometry:
         self.stencil = np.zeros((subpixel * subpixel, self.stencil_len.max()), np.int64)
         for k, offsets in enumerate(stencils):
             self.stencil[k, : len(offsets)] = offsets
-        self._tags = np.zeros(self.nx * self.ny, np.int64)  # scratch grid of the raster kernel
+        self._tags = np.zeros(self.nx * self.ny, np.int64)  # scratch grids of the raster kernel
+        self._owner = np.zeros(self.nx * self.ny, np.int64)
         self._epoch = 0
 
     def union_area(self, xy: np.ndarray, area: np.ndarray, marginal: bool = False):
@@ -215,7 +216,7 @@ class CoverageGeometry:
         base = cell[:, 0] * self.ny + cell[:, 1]
         k = q[:, 0] * self.subpixel + q[:, 1]
         shared, self._epoch = _overlap_cells(
-            env_idx, base, k, self.stencil, self.stencil_len, self.mask, self._tags, self._epoch, marginal
+            env_idx, base, k, self.stencil, self.stencil_len, self.mask, self._tags, self._owner, self._epoch, marginal
         )
         cell_area = self.raster_h**2
         excess = np.bincount(env_idx, weights=shared[:, 0], minlength=n_env)
@@ -227,13 +228,15 @@ class CoverageGeometry:
 
 
 @njit(cache=True)
-def _overlap_cells(env, base, k, stencil, stencil_len, mask, tags, epoch, marginal):  # pragma: no cover - compiled
+def _overlap_cells(env, base, k, stencil, stencil_len, mask, tags, owner, epoch, marginal):  # pragma: no cover
     """Raster kernel of ``union_area``: per stamp, (its share of the overlap excess, its cells covered twice
-    or more, counted only when ``marginal``).
+    or more, counted only when ``marginal``), in one pass over the stamps' cells.
 
-    ``tags`` [n_cells] holds ``epoch << 16 | count`` per cell; each environment's stamps get a fresh epoch, so a
-    stale tag reads as count 0 and the grid never needs clearing. The excess of a cell covered c ≥ 1 times is
-    c − 1: the first stamp of a cell adds nothing, each later one adds 1. Returns (out, next epoch).
+    ``tags`` [n_cells] holds ``epoch << 16 | count`` per cell and ``owner`` [n_cells] the cell's first stamp;
+    each environment's stamps get a fresh epoch, so a stale tag reads as count 0 and the grid never needs
+    clearing. The excess of a cell covered c ≥ 1 times is c − 1: the first stamp of a cell adds nothing, each
+    later one adds 1. A cell shared by c ≥ 2 stamps counts once for each of them: the first stamp is credited
+    when the second arrives. Returns (out, next epoch).
     """
     m = len(base)
     out = np.zeros((m, 2))
@@ -253,15 +256,13 @@ def _overlap_cells(env, base, k, stencil, stencil_len, mask, tags, epoch, margin
                     if t >= stale:
                         out[i, 0] += 1.0
                         tags[c] = t + 1
+                        if marginal:
+                            out[i, 1] += 1.0
+                            if t == stale + 1:
+                                out[owner[c], 1] += 1.0
                     else:
                         tags[c] = stale + 1
-        if marginal:
-            for i in range(start, stop):
-                kk = k[i]
-                for j in range(stencil_len[kk]):
-                    c = base[i] + stencil[kk, j]
-                    if mask[c] and tags[c] >= stale + 2:
-                        out[i, 1] += 1.0
+                        owner[c] = i
         start = stop
     return out, epoch
 

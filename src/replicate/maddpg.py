@@ -105,17 +105,18 @@ class Batch:
     next_obs: torch.Tensor
 
 
-def clip_grad_per_agent(params, max_norm: float) -> None:
+def clip_grad_per_agent(params: list[torch.Tensor], max_norm: float) -> None:
     """openai/maddpg clips each variable's gradient by norm; here each agent's slice of each stacked tensor."""
-    for p in params:
-        norms = p.grad.flatten(1).norm(dim=1).clamp_min(1e-12)
-        p.grad.mul_((max_norm / norms).clamp(max=1.0).view(-1, *([1] * (p.grad.dim() - 1))))
+    grads = [p.grad for p in params]
+    norms = [torch.linalg.vector_norm(g.flatten(1), dim=1).clamp_min_(1e-12) for g in grads]
+    scales = [(max_norm / m).clamp_(max=1.0).view(-1, *([1] * (g.dim() - 1))) for m, g in zip(norms, grads)]
+    torch._foreach_mul_(grads, scales)
 
 
-def soft_update(target: nn.Module, online: nn.Module, tau: float) -> None:
-    """θ' ← τθ + (1 − τ)θ'."""
-    for tp, p in zip(target.parameters(), online.parameters()):
-        tp.data.lerp_(p.data, tau)
+@torch.no_grad()
+def soft_update(target: list[torch.Tensor], online: list[torch.Tensor], tau: float) -> None:
+    """θ' ← τθ + (1 − τ)θ' for parameter lists."""
+    torch._foreach_lerp_(target, online, tau)
 
 
 class MADDPG:
@@ -143,7 +144,8 @@ class MADDPG:
         self.critic_target = copy.deepcopy(self.critic)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr, fused=True)
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr, fused=True)
-        self.own = torch.eye(n_agents, dtype=torch.bool, device=self.device).view(n_agents, 1, n_agents, 1)
+        self.params = {k: list(getattr(self, k).parameters()) for k in ("actor", "critic", "actor_target", "critic_target")}
+        self.agents = torch.arange(n_agents, device=self.device)
 
     @torch.no_grad()
     def policy(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -176,23 +178,22 @@ class MADDPG:
         critic_loss = ((q - y) ** 2).mean(dim=1).sum()
         self.critic_opt.zero_grad(set_to_none=True)
         critic_loss.backward()
-        clip_grad_per_agent(self.critic.parameters(), cfg.grad_clip)
+        clip_grad_per_agent(self.params["critic"], cfg.grad_clip)
         self.critic_opt.step()
 
         # Actor: ∇θ_i J = E[∇θ_i μ_i(o_i) ∇a_i Q_i(x, a_1, …, μ_i(o_i), …, a_N)] + 1e-3·mean(pre-tanh²)
         pre = self.actor(own_obs)  # [N, B, ad]
-        joint = torch.where(self.own, torch.tanh(pre).unsqueeze(2), act.unsqueeze(0))  # [N, B, N, ad]
-        self.critic.requires_grad_(False)  # the actor step differentiates through Q, not into it
+        joint = act.unsqueeze(0).repeat(n, 1, 1, 1)  # [N, B, N, ad]: critic i sees the batch's actions ...
+        joint[self.agents, :, self.agents] = torch.tanh(pre)  # ... except its own agent's, μ_i(o_i)
         q_pi = self.critic(torch.cat([x, joint.flatten(2)], dim=-1)).squeeze(-1)
-        self.critic.requires_grad_(True)
         actor_loss = (-q_pi.mean(dim=1) + cfg.actor_reg * (pre**2).mean(dim=(1, 2))).sum()
         self.actor_opt.zero_grad(set_to_none=True)
-        actor_loss.backward()
-        clip_grad_per_agent(self.actor.parameters(), cfg.grad_clip)
+        actor_loss.backward(inputs=self.params["actor"])  # through Q into μ_i only, not into Q's weights
+        clip_grad_per_agent(self.params["actor"], cfg.grad_clip)
         self.actor_opt.step()
 
-        soft_update(self.critic_target, self.critic, cfg.tau)
-        soft_update(self.actor_target, self.actor, cfg.tau)
+        soft_update(self.params["critic_target"], self.params["critic"], cfg.tau)  # θ' ← τθ + (1 − τ)θ'
+        soft_update(self.params["actor_target"], self.params["actor"], cfg.tau)
         return {
             "critic_loss": critic_loss.item() / n,
             "q_abs": q.detach().abs().mean().item(),
