@@ -144,7 +144,8 @@ class MADDPG:
         self.critic_target = copy.deepcopy(self.critic)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr, fused=True)
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr, fused=True)
-        self.params = {k: list(getattr(self, k).parameters()) for k in ("actor", "critic", "actor_target", "critic_target")}
+        nets = ("actor", "critic", "actor_target", "critic_target")
+        self.params = {k: list(getattr(self, k).parameters()) for k in nets}  # load_state_dict copies in place
         self.agents = torch.arange(n_agents, device=self.device)
 
     @torch.no_grad()
