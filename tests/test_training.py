@@ -15,10 +15,10 @@ import pytest
 import torch
 
 from replicate import baselines, evaluate, regression
-from replicate.artifacts import CheckpointError
+from replicate.artifacts import CheckpointError, read_text
 from replicate.config import load_params, run_config
 from replicate.maddpg import MADDPG
-from replicate.train import Trainer, load_actors, make_env, run_identity, train
+from replicate.train import CURVE, Trainer, load_actors, make_env, run_identity, train
 
 from .conftest import ROOT
 
@@ -87,10 +87,10 @@ def small_trainer(params, region, out, seed=0, episodes=20, **algo_changes):
 
 def test_run_writes_curve_checkpoint_actors(params, regions, tmp_path):
     summary = small_trainer(params, regions["square"], tmp_path / "run").run()
-    for name in ("curve.csv", "checkpoint.pt", "actors.pt", "run.json"):
+    for name in (CURVE, "checkpoint.pt", "actors.pt", "run.json"):
         assert (tmp_path / "run" / name).exists()
     assert summary["status"] == "finished" and summary["transitions"] == 20 * 50
-    curve = evaluate.read_curve(tmp_path / "run" / "curve.csv")
+    curve = evaluate.read_curve(tmp_path / "run" / CURVE)
     assert list(curve["episode"]) == list(range(20))
     assert not list(tmp_path.glob("run/.*.tmp")), "no temporary file is left behind"
 
@@ -161,17 +161,17 @@ def test_killed_run_resumes_to_the_same_curve(tmp_path):
     proc = cli(*common, "--out", str(tmp_path / "cut"))
     ckpt = tmp_path / "cut" / "checkpoint.pt"
     deadline = time.time() + 300
-    while time.time() < deadline and not (ckpt.exists() and (tmp_path / "cut" / "curve.csv").stat().st_size > 2000):
+    while time.time() < deadline and not (ckpt.exists() and (tmp_path / "cut" / CURVE).stat().st_size > 500):
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    cut_rows = len((tmp_path / "cut" / "curve.csv").read_text().splitlines()) - 1
+    cut_rows = len(read_text(tmp_path / "cut" / CURVE).splitlines()) - 1
     assert 0 < cut_rows < 80, "the run must be cut before its end"
     refused = cli(*common, "--out", str(tmp_path / "cut"), stderr=subprocess.PIPE, text=True)
     assert refused.wait(timeout=300) == 2 and "--resume" in refused.stderr.read()
     assert cli(*common, "--out", str(tmp_path / "cut"), "--resume").wait(timeout=600) == 0
-    whole = evaluate.read_curve(tmp_path / "whole" / "curve.csv")
-    resumed = evaluate.read_curve(tmp_path / "cut" / "curve.csv")
+    whole = evaluate.read_curve(tmp_path / "whole" / CURVE)
+    resumed = evaluate.read_curve(tmp_path / "cut" / CURVE)
     for column in ("team_reward", "coverage", "critic_loss"):
         np.testing.assert_array_equal(resumed[column], whole[column])
     assert (tmp_path / "cut" / "validation.csv").read_text() == (tmp_path / "whole" / "validation.csv").read_text()

@@ -7,6 +7,7 @@ half-written file behind: a reader sees the old version or the new one.
 from __future__ import annotations
 
 import csv
+import gzip
 import io
 import json
 import os
@@ -48,12 +49,21 @@ def write_json(path: str | Path, obj: Any) -> None:
 
 
 def write_csv(path: str | Path, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
+    """A CSV file; gzip-compressed when ``path`` ends in ``.gz`` (with a fixed header time, so the same rows
+    give the same bytes)."""
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(header)
     for row in rows:
         writer.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in row])
-    atomic_write_text(path, buf.getvalue())
+    data = buf.getvalue().encode()
+    atomic_write_bytes(path, gzip.compress(data, mtime=0) if str(path).endswith(".gz") else data)
+
+
+def read_text(path: str | Path) -> str:
+    """The text of a file written by ``write_csv`` or ``atomic_write_text``, gzip-compressed or not."""
+    data = Path(path).read_bytes()
+    return (gzip.decompress(data) if str(path).endswith(".gz") else data).decode()
 
 
 def torch_save(path: str | Path, obj: Any) -> None:

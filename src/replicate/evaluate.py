@@ -7,6 +7,7 @@ method and a baseline start from the same positions. Policies are deterministic 
 from __future__ import annotations
 
 import csv
+import io
 import json
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -18,7 +19,7 @@ from . import artifacts, baselines, metrics
 from .config import ConfigError, Params, RunConfig, load_params, run_config, selection_only
 from .env import CoverageEnv
 from .regions import Region, make_region
-from .train import load_actors
+from .train import CURVE, load_actors
 
 BASELINES = ("random", "naive", "lloyd", "lloyd_converged")
 
@@ -64,8 +65,8 @@ def actor_policy(net, observation: str) -> baselines.Policy:
 
 
 def read_curve(path: str | Path) -> dict[str, np.ndarray]:
-    with open(path) as fh:
-        rows = list(csv.DictReader(fh))
+    """Columns of a curve file (``curve.csv.gz`` of a run, ``validation.csv``, a reference curve)."""
+    rows = list(csv.DictReader(io.StringIO(artifacts.read_text(path))))
     if not rows:
         raise ValueError(f"{path}: empty curve")
     return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
@@ -86,7 +87,7 @@ def evaluate_run(run_dir: str | Path, params: Params, region: Region, actors: st
         raise ConfigError(f"{run_dir}: actors observe {meta['observation']!r}, params say {rc.algo.observation!r}")
     pos = rollout(env, actor_policy(net, meta["observation"]), rc.world.episode_length, ev.seed)["positions"]
     out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
-    curve = read_curve(run_dir / "curve.csv")
+    curve = read_curve(run_dir / CURVE)
     conv = metrics.convergence_episode(
         curve["team_reward"], ev.converge_window, ev.converge_tolerance, ev.converge_final
     )
@@ -177,7 +178,7 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
     jobs = []
     for run in sorted(p for p in Path(runs_dir).iterdir() if (p / "actors.pt").exists()):
         ident = json.loads((run / "run.json").read_text())
-        curve = read_curve(run / "curve.csv")
+        curve = read_curve(run / CURVE)
         artifacts.write_csv(metrics_dir / "curves" / f"{run.name}.csv", ["episode", "team_reward", "coverage"],
                             zip(curve["episode"].astype(int), curve["team_reward"], curve["coverage"]))
         jobs.append({"params": params_path, "run": str(run), "region": ident["region"],

@@ -14,6 +14,7 @@ from .env import start_patch
 from .evaluate import BASELINES, read_curve
 from .metrics import coverage_ceiling
 from .regions import make_region
+from .train import CURVE
 
 
 def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir: str, outline_path: str) -> list:
@@ -29,7 +30,7 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
     regions = {n: make_region(n, params.regions[n], params.world.region_area) for n in params.regions}
     written.append(plots.three_cases(regions["square"].polygon, c.radius, c.edges, fig / "fig_agent_vs_region.png"))
 
-    runs = sorted(p for p in runs_dir.iterdir() if (p / "curve.csv").exists())
+    runs = sorted(p for p in runs_dir.iterdir() if (p / CURVE).exists())
     by_group: dict[tuple, list] = {}
     for run in runs:
         ident = json.loads((run / "run.json").read_text())
@@ -37,7 +38,7 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
             continue
         by_group.setdefault((ident["config"], ident["method"], ident["region"]), []).append(run)
 
-    curves_of = {key: [read_curve(r / "curve.csv") for r in sorted(group)] for key, group in by_group.items()}
+    curves_of = {key: [read_curve(r / CURVE) for r in sorted(group)] for key, group in by_group.items()}
     for (config, method, region_name), group in sorted(by_group.items()):
         region = regions[region_name]
         curves = curves_of[(config, method, region_name)]
@@ -109,3 +110,11 @@ def describe_source(outline_path: str) -> str:
     if props.get("source") == "openstreetmap":
         return f"OpenStreetMap ({props.get('osm_id')}, retrieved {props.get('retrieved')})"
     return f"bundled SLA National Map outline — OpenStreetMap was unreachable ({props.get('retrieved')})"
+
+
+def gallery(paths, notebook_dir: str) -> str:
+    """Markdown that shows every figure from its file, linked relative to the executed notebook in
+    ``notebook_dir`` (embedding them made the executed notebook 12 MB, rewritten on every run)."""
+    import os
+
+    return "\n\n".join(f"**{Path(p).name}**\n\n![{Path(p).stem}]({os.path.relpath(p, notebook_dir)})" for p in paths)

@@ -1,6 +1,6 @@
 """The training matrix of the pipeline's ``train`` stage: config × method × region × seed, one process per core.
 
-Layout: ``runs/NAME/{curve.csv, actors.pt, run.json}`` with NAME = ``CONFIG-METHOD-REGION-sSEED``, and
+Layout: ``runs/NAME/{curve.csv.gz, actors.pt, run.json}`` with NAME = ``CONFIG-METHOD-REGION-sSEED``, and
 ``runs/summary.json`` (wall time per run). ``evaluate.evaluate_matrix`` and ``figures.make_figures`` read it.
 """
 

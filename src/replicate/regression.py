@@ -15,10 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
+from . import artifacts
 from .config import Params, load_params, run_config
 from .evaluate import read_curve
 from .regions import make_region
-from .train import train
+from .train import CURVE, train
 
 CASES = [(config, method) for config in ("paper", "tuned") for method in ("sw", "cr")]
 COMPARED = ("team_reward", "coverage")
@@ -32,7 +33,7 @@ def reduced_curve(params: Params, config: str, method: str, out: Path) -> dict[s
     rc = dataclasses.replace(rc, algo=dataclasses.replace(rc.algo, n_envs=reg.n_envs, maddpg=maddpg))
     region = make_region(reg.region, params.regions[reg.region], params.world.region_area)
     train(rc, region, reg.episodes, reg.seed, out, checkpoint_every=reg.episodes, progress=False)
-    return read_curve(Path(out) / "curve.csv")
+    return read_curve(Path(out) / CURVE)
 
 
 def reference_path(root: Path, config: str, method: str) -> Path:
@@ -50,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
             reduced_curve(params, config, method, Path(tmp) / "run")
             target = reference_path(Path(args.write), config, method)
             target.parent.mkdir(parents=True, exist_ok=True)
-            target.write_text((Path(tmp) / "run" / "curve.csv").read_text())
+            target.write_text(artifacts.read_text(Path(tmp) / "run" / CURVE))
             print(f"wrote {target}")
     return 0
 
