@@ -57,6 +57,34 @@ def training_split(params, square, config: str, method: str, episodes: int):
     return env_s, per_update, steady_updates_per_1000 * per_update, full
 
 
+def machine_gemm_gflops(seconds=1.0) -> float:
+    """Single-thread GFLOPS of the update's typical matmul (9 stacked [128, 54] x [54, 64]): the machine's speed,
+    so run times measured on different machines can be compared."""
+    x, w, b = torch.randn(9, 128, 54), torch.randn(9, 54, 64), torch.zeros(9, 1, 64)
+    calls, t = 0, time.perf_counter()
+    while time.perf_counter() - t < seconds:
+        torch.baddbmm(b, x, w)
+        calls += 1
+    return 2 * 9 * 128 * 54 * 64 * calls / (time.perf_counter() - t) / 1e9
+
+
+def update_gflop(params, config: str, obs_dim: int) -> float:
+    """Matmul GFLOP of one update of 9 agents (forward and backward), counted by torch's FlopCounterMode."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    cfg = params.configs[config].maddpg
+    rng = np.random.default_rng(0)
+    buf = ReplayBuffer(cfg.batch_size, 9, obs_dim, 2)
+    buf.add(rng.normal(size=(cfg.batch_size, 9, obs_dim)).astype(np.float32),
+            rng.uniform(-1, 1, (cfg.batch_size, 9, 2)).astype(np.float32),
+            rng.normal(size=(cfg.batch_size, 9)).astype(np.float32),
+            rng.normal(size=(cfg.batch_size, 9, obs_dim)).astype(np.float32))
+    agent = MADDPG(9, obs_dim, 2, cfg, "individual", seed=0)
+    with FlopCounterMode(display=False) as counter:
+        agent.update(buf.sample(rng, cfg.batch_size))
+    return counter.get_total_flops() / 1e9
+
+
 def update_ratio(params):
     cfg = params.configs["paper"].maddpg
     rng = np.random.default_rng(0)
@@ -113,13 +141,24 @@ def main(argv=None) -> int:
     params = load_params("params.yaml")
     square = make_region("square", params.regions["square"], params.world.region_area)
 
+    print("== 0. this machine (one thread) ==")
+    gflops = machine_gemm_gflops()
+    print(f"matmul throughput {gflops:.1f} GFLOPS; per-run times below scale with it across machines")
+    floors = {}
+    for config, obs_dim in (("paper", 2), ("tuned", 4)):
+        gflop = update_gflop(params, config, obs_dim)
+        floors[config] = gflop / gflops
+        print(f"{config}: one update of 9 agents is {gflop:.3f} GFLOP of matmuls: {floors[config] * 1e3:.1f} ms "
+              f"at that throughput (the floor for an update)")
+
     print("== 1. training time, square (one thread) ==")
     for config, target in (("paper", 90), ("tuned", 180)):
         for method in ("cr", "sw"):
             env_s, per_update, upd_1000, full = training_split(params, square, config, method, args.episodes)
             print(f"{config} {method.upper()}-MARL: per 1,000 episodes: environment+geometry+acting {env_s:6.1f} s, "
                   f"updates {upd_1000:6.1f} s ({per_update * 1e3:.1f} ms per update of 9 agents); "
-                  f"projected 10,000-episode run {full:6.1f} s (target {target} s)")
+                  f"projected 10,000-episode run {full:6.1f} s (target {target} s); "
+                  f"updates at {floors[config] / per_update:.0%} of the matmul floor")
 
     print("== 2. one MADDPG update of 9 agents, batch 1024 ==")
     tb, tl = update_ratio(params)

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from replicate import baselines, evaluate, regression
-from replicate.artifacts import CheckpointError, read_text
+from replicate.artifacts import CheckpointError, read_text, write_csv
 from replicate.config import load_params, run_config
 from replicate.maddpg import MADDPG
 from replicate.train import CURVE, Trainer, load_actors, make_env, run_identity, train
@@ -93,6 +93,21 @@ def test_run_writes_curve_checkpoint_actors(params, regions, tmp_path):
     curve = evaluate.read_curve(tmp_path / "run" / CURVE)
     assert list(curve["episode"]) == list(range(20))
     assert not list(tmp_path.glob("run/.*.tmp")), "no temporary file is left behind"
+
+
+def test_gzip_curve_is_deterministic_and_reads_back(tmp_path):
+    """The same rows give the same bytes (no time stamp in the gzip header), so an unchanged run's curve leaves
+    git and DVC unchanged; the text reads back exactly."""
+    rows = [[0, 1.5, 0.25], [1, 2.0, 0.125]]
+    write_csv(tmp_path / "a.csv.gz", ["episode", "reward", "coverage"], rows)
+    time.sleep(1.1)
+    write_csv(tmp_path / "b.csv.gz", ["episode", "reward", "coverage"], rows)
+    write_csv(tmp_path / "c.csv", ["episode", "reward", "coverage"], rows)
+    assert (tmp_path / "a.csv.gz").read_bytes() == (tmp_path / "b.csv.gz").read_bytes()
+    assert (tmp_path / "a.csv.gz").read_bytes()[:2] == b"\x1f\x8b"
+    text = "episode,reward,coverage\n0,1.5,0.25\n1,2,0.125\n"
+    assert read_text(tmp_path / "a.csv.gz") == (tmp_path / "c.csv").read_text() == text
+    np.testing.assert_array_equal(evaluate.read_curve(tmp_path / "a.csv.gz")["coverage"], [0.25, 0.125])
 
 
 def test_selection_keeps_the_best_validated_actors(params, regions, tmp_path):
