@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -109,6 +110,10 @@ def test_dvc_repro_end_to_end(tmp_path):
     assert len(list((repo / "notebooks" / "executed").glob("*.ipynb"))) == len(declared)
 
     figures = {p.name for p in (repo / "figures").glob("*.png")}
+    executed = repo / "notebooks" / "executed"
+    shown = re.findall(r"!\[[^]]*\]\(([^)]+)\)", (executed / "figures.ipynb").read_text())
+    assert {Path(s).name for s in shown} >= figures, "the figures notebook does not show every figure"
+    assert all((executed / s).resolve().is_file() for s in shown), "a figure link of the notebook leads nowhere"
     missing = expected_figures(params["pipeline"]["configs"]) - figures
     assert not missing, f"figures not produced: {sorted(missing)}"
     gifs = {p.name for p in (repo / "figures").glob("*.gif")}
