@@ -1,5 +1,8 @@
 """`make bench`: speed figures, each measured in this one run against a reference run beside it.
 
+0. This machine: single-thread matmul throughput, each configuration's matmul GFLOP per update (the floor of an
+   update at that throughput), and where an update's time goes (wide matmuls, skinny ones, elementwise ops and
+   copies, optimiser), so run times measured on different machines and the room left for speed-ups can be read.
 1. Time per 1,000 episodes of the paper and tuned configurations (CR-MARL and SW-MARL, square), split into
    environment + geometry + acting (+ validation) and MADDPG updates, and the projected wall time of a full
    10,000-episode run (issue 4's budget for `tuned`: 180 s on one core).
@@ -85,6 +88,50 @@ def update_gflop(params, config: str, obs_dim: int) -> float:
     return counter.get_total_flops() / 1e9
 
 
+def update_breakdown(params, config: str, obs_dim: int, updates: int = 5) -> dict[str, tuple[float, float]]:
+    """Where one update's time goes: {kind: (ms per update, matmul GFLOPS or nan)}, timing every aten call
+    (``TorchDispatchMode``). Matmuls are split into wide ones (every dimension ≥ 16) and skinny ones (an output
+    width or inner size below 16: the last layers and their gradients)."""
+    from collections import defaultdict
+
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    cfg = params.configs[config].maddpg
+    rng = np.random.default_rng(0)
+    buf = ReplayBuffer(cfg.batch_size * 4, 9, obs_dim, 2)
+    buf.add(rng.normal(size=(cfg.batch_size * 4, 9, obs_dim)).astype(np.float32),
+            rng.uniform(-1, 1, (cfg.batch_size * 4, 9, 2)).astype(np.float32),
+            rng.normal(size=(cfg.batch_size * 4, 9)).astype(np.float32),
+            rng.normal(size=(cfg.batch_size * 4, 9, obs_dim)).astype(np.float32))
+    agent = MADDPG(9, obs_dim, 2, cfg, "individual", seed=0)
+    batch = buf.sample(rng, cfg.batch_size)
+    agent.update(batch)
+    seconds, flops = defaultdict(float), defaultdict(float)
+
+    class Timer(TorchDispatchMode):
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            t = time.perf_counter()
+            out = func(*args, **(kwargs or {}))
+            dt = time.perf_counter() - t
+            name = func.__name__.split(".")[0]
+            if name in ("bmm", "baddbmm", "mm", "addmm"):
+                a, b = args[:2] if name in ("bmm", "mm") else args[1:3]  # the two factors, after any bias
+                m, k, n = a.shape[-2], a.shape[-1], b.shape[-1]
+                kind = "matmul, wide" if min(m, k, n) >= 16 else "matmul, skinny"
+                flops[kind] += 2 * a[..., 0, 0].numel() * m * k * n
+            elif name.startswith("_fused_adam") or name.startswith("_foreach"):
+                kind = "optimiser, clip, soft update"
+            else:
+                kind = "elementwise, copies, reductions"
+            seconds[kind] += dt
+            return out
+
+    with Timer():
+        for _ in range(updates):
+            agent.update(batch)
+    return {k: (v / updates * 1e3, flops[k] / v / 1e9 if k in flops else float("nan")) for k, v in seconds.items()}
+
+
 def update_ratio(params):
     cfg = params.configs["paper"].maddpg
     rng = np.random.default_rng(0)
@@ -151,6 +198,11 @@ def main(argv=None) -> int:
         print(f"{config}: one update of 9 agents is {gflop:.3f} GFLOP of matmuls: {floors[config] * 1e3:.1f} ms "
               f"at that throughput (the floor for an update)")
 
+    for config, obs_dim in (("paper", 2), ("tuned", 4)):
+        parts = update_breakdown(params, config, obs_dim)
+        print(f"{config}: where an update's time goes (every aten call timed, so the total runs slower): " + "; ".join(
+            f"{k} {ms:.2f} ms" + (f" at {gf:.1f} GFLOPS" if gf == gf else "") for k, (ms, gf) in sorted(parts.items())))
+
     print("== 1. training time, square (one thread) ==")
     for config, target in (("paper", 90), ("tuned", 180)):
         for method in ("cr", "sw"):
@@ -158,7 +210,7 @@ def main(argv=None) -> int:
             print(f"{config} {method.upper()}-MARL: per 1,000 episodes: environment+geometry+acting {env_s:6.1f} s, "
                   f"updates {upd_1000:6.1f} s ({per_update * 1e3:.1f} ms per update of 9 agents); "
                   f"projected 10,000-episode run {full:6.1f} s (target {target} s); "
-                  f"updates at {floors[config] / per_update:.0%} of the matmul floor")
+                  f"the matmul floor is {floors[config] / per_update:.0%} of an update's time")
 
     print("== 2. one MADDPG update of 9 agents, batch 1024 ==")
     tb, tl = update_ratio(params)
