@@ -71,24 +71,31 @@ def machine_gemm_gflops(seconds=1.0) -> float:
     return 2 * 9 * 128 * 54 * 64 * calls / (time.perf_counter() - t) / 1e9
 
 
-def update_gflop(params, config: str, obs_dim: int) -> float:
+OBS_DIM = {"paper": 2, "tuned": 4}  # own position; own position and velocity (env.CoverageEnv.obs_dim)
+
+
+def agent_and_batch(params, config: str) -> tuple[MADDPG, object]:
+    """A fresh MADDPG of ``config`` (9 agents, CR's per-agent rewards) and one minibatch of random transitions."""
+    cfg, obs_dim = params.configs[config].maddpg, OBS_DIM[config]
+    rng = np.random.default_rng(0)
+    size = 4 * cfg.batch_size
+    buf = ReplayBuffer(size, 9, obs_dim, 2)
+    buf.add(rng.normal(size=(size, 9, obs_dim)).astype(np.float32), rng.uniform(-1, 1, (size, 9, 2)).astype(np.float32),
+            rng.normal(size=(size, 9)).astype(np.float32), rng.normal(size=(size, 9, obs_dim)).astype(np.float32))
+    return MADDPG(9, obs_dim, 2, cfg, "individual", seed=0), buf.sample(rng, cfg.batch_size)
+
+
+def update_gflop(params, config: str) -> float:
     """Matmul GFLOP of one update of 9 agents (forward and backward), counted by torch's FlopCounterMode."""
     from torch.utils.flop_counter import FlopCounterMode
 
-    cfg = params.configs[config].maddpg
-    rng = np.random.default_rng(0)
-    buf = ReplayBuffer(cfg.batch_size, 9, obs_dim, 2)
-    buf.add(rng.normal(size=(cfg.batch_size, 9, obs_dim)).astype(np.float32),
-            rng.uniform(-1, 1, (cfg.batch_size, 9, 2)).astype(np.float32),
-            rng.normal(size=(cfg.batch_size, 9)).astype(np.float32),
-            rng.normal(size=(cfg.batch_size, 9, obs_dim)).astype(np.float32))
-    agent = MADDPG(9, obs_dim, 2, cfg, "individual", seed=0)
+    agent, batch = agent_and_batch(params, config)
     with FlopCounterMode(display=False) as counter:
-        agent.update(buf.sample(rng, cfg.batch_size))
+        agent.update(batch)
     return counter.get_total_flops() / 1e9
 
 
-def update_breakdown(params, config: str, obs_dim: int, updates: int = 5) -> dict[str, tuple[float, float]]:
+def update_breakdown(params, config: str, updates: int = 5) -> dict[str, tuple[float, float]]:
     """Where one update's time goes: {kind: (ms per update, matmul GFLOPS or nan)}, timing every aten call
     (``TorchDispatchMode``). Matmuls are split into wide ones (every dimension ≥ 16) and skinny ones (an output
     width or inner size below 16: the last layers and their gradients)."""
@@ -96,15 +103,7 @@ def update_breakdown(params, config: str, obs_dim: int, updates: int = 5) -> dic
 
     from torch.utils._python_dispatch import TorchDispatchMode
 
-    cfg = params.configs[config].maddpg
-    rng = np.random.default_rng(0)
-    buf = ReplayBuffer(cfg.batch_size * 4, 9, obs_dim, 2)
-    buf.add(rng.normal(size=(cfg.batch_size * 4, 9, obs_dim)).astype(np.float32),
-            rng.uniform(-1, 1, (cfg.batch_size * 4, 9, 2)).astype(np.float32),
-            rng.normal(size=(cfg.batch_size * 4, 9)).astype(np.float32),
-            rng.normal(size=(cfg.batch_size * 4, 9, obs_dim)).astype(np.float32))
-    agent = MADDPG(9, obs_dim, 2, cfg, "individual", seed=0)
-    batch = buf.sample(rng, cfg.batch_size)
+    agent, batch = agent_and_batch(params, config)
     agent.update(batch)
     seconds, flops = defaultdict(float), defaultdict(float)
 
@@ -133,15 +132,8 @@ def update_breakdown(params, config: str, obs_dim: int, updates: int = 5) -> dic
 
 
 def update_ratio(params):
-    cfg = params.configs["paper"].maddpg
-    rng = np.random.default_rng(0)
-    buf = ReplayBuffer(50_000, 9, 2, 2)
-    for _ in range(50):
-        buf.add(rng.normal(size=(1000, 9, 2)).astype(np.float32), rng.uniform(-1, 1, (1000, 9, 2)).astype(np.float32),
-                rng.normal(size=(1000, 9)).astype(np.float32), rng.normal(size=(1000, 9, 2)).astype(np.float32))
-    batched = MADDPG(9, 2, 2, cfg, "individual", seed=0)
+    batched, batch = agent_and_batch(params, "paper")
     loop = LoopMADDPG(batched)
-    batch = buf.sample(rng, cfg.batch_size)
     batched.update(batch), loop.update(batch)
     tb = best_of(lambda: [batched.update(batch) for _ in range(5)]) / 5
     tl = best_of(lambda: [loop.update(batch) for _ in range(5)]) / 5
@@ -192,14 +184,12 @@ def main(argv=None) -> int:
     gflops = machine_gemm_gflops()
     print(f"matmul throughput {gflops:.1f} GFLOPS; per-run times below scale with it across machines")
     floors = {}
-    for config, obs_dim in (("paper", 2), ("tuned", 4)):
-        gflop = update_gflop(params, config, obs_dim)
+    for config in OBS_DIM:
+        gflop = update_gflop(params, config)
         floors[config] = gflop / gflops
         print(f"{config}: one update of 9 agents is {gflop:.3f} GFLOP of matmuls: {floors[config] * 1e3:.1f} ms "
               f"at that throughput (the floor for an update)")
-
-    for config, obs_dim in (("paper", 2), ("tuned", 4)):
-        parts = update_breakdown(params, config, obs_dim)
+        parts = update_breakdown(params, config)
         print(f"{config}: where an update's time goes (every aten call timed, so the total runs slower): " + "; ".join(
             f"{k} {ms:.2f} ms" + (f" at {gf:.1f} GFLOPS" if gf == gf else "") for k, (ms, gf) in sorted(parts.items())))
 
