@@ -5,7 +5,9 @@
    copies, optimiser), so run times measured on different machines and the room left for speed-ups can be read.
 1. Time per 1,000 episodes of the paper and tuned configurations (CR-MARL and SW-MARL, square), split into
    environment + geometry + acting (+ validation) and MADDPG updates, and the projected wall time of a full
-   10,000-episode run (issue 4's budget for `tuned`: 180 s on one core).
+   10,000-episode run (issue 4's budget for `tuned`: 180 s on one core). From these, the projected `train` stage
+   of the pipeline (every run of params.yaml's matrix and ablation, two at a time), and the same with every
+   update at its matmul floor: how far issue 3's 45 minutes for the whole `dvc repro` is on this machine.
 2. One update of all 9 agents: the batched MADDPG against the per-agent loop (``maddpg_loop``), as a ratio.
 3. Environment throughput (agent-steps per second, random actions) against PettingZoo MPE2 ``simple_spread_v3``
    with N = 9 and continuous actions, as a ratio.
@@ -29,6 +31,7 @@ from replicate.config import load_params, run_config
 from replicate.env import CoverageEnv
 from replicate.maddpg import MADDPG, ReplayBuffer
 from replicate.maddpg_loop import LoopMADDPG
+from replicate.pipeline import ablation_cells
 from replicate.regions import make_region
 from replicate.train import Trainer
 
@@ -58,6 +61,32 @@ def training_split(params, square, config: str, method: str, episodes: int):
     steady_updates_per_1000 = 1000 * rc.world.episode_length / cfg.update_every
     full = env_s * params.train.episodes / 1000 + full_updates * per_update
     return env_s, per_update, steady_updates_per_1000 * per_update, full
+
+
+def train_stage_projection(params, splits, floors, workers: int = 2) -> tuple[int, float, float]:
+    """(runs, projected seconds, seconds with updates at the matmul floor) of the pipeline's ``train`` stage:
+    every cell of ``pipeline`` in params.yaml plus the ablation, × seeds, ``workers`` runs at a time. A run costs
+    the square's environment time of its config family and method (``splits``) plus its update count times the
+    measured update of the same batch size (``paper``'s for batch 1024, ``tuned``'s for 128)."""
+    import yaml
+
+    matrix = yaml.safe_load(Path("params.yaml").read_text())["pipeline"]
+    cells = [(c, m, r) for c in matrix["configs"] for m in matrix["methods"] for r in matrix["regions"]]
+    cells += ablation_cells(params) if matrix["ablation"] else []
+    by_batch = {params.configs[f].maddpg.batch_size: f for f in OBS_DIM}
+    total = floor = 0.0
+    for config, method, _ in cells:
+        rc = run_config(params, config, method)
+        cfg = rc.algo.maddpg
+        family = by_batch[cfg.batch_size]
+        env_s = splits[("paper" if config == "paper" else "tuned", method)][0]
+        per_update = splits[(family, method)][1]
+        updates = (params.train.episodes * rc.world.episode_length - cfg.learning_starts) / cfg.update_every
+        env = env_s * params.train.episodes / 1000
+        total += env + updates * per_update
+        floor += env + updates * floors[family]
+    runs = len(cells) * len(params.train.seeds)
+    return runs, total * len(params.train.seeds) / workers, floor * len(params.train.seeds) / workers
 
 
 def machine_gemm_gflops(seconds=1.0) -> float:
@@ -194,13 +223,21 @@ def main(argv=None) -> int:
             f"{k} {ms:.2f} ms" + (f" at {gf:.1f} GFLOPS" if gf == gf else "") for k, (ms, gf) in sorted(parts.items())))
 
     print("== 1. training time, square (one thread) ==")
+    splits = {}
     for config, target in (("paper", 90), ("tuned", 180)):
         for method in ("cr", "sw"):
             env_s, per_update, upd_1000, full = training_split(params, square, config, method, args.episodes)
+            splits[(config, method)] = (env_s, per_update)
             print(f"{config} {method.upper()}-MARL: per 1,000 episodes: environment+geometry+acting {env_s:6.1f} s, "
                   f"updates {upd_1000:6.1f} s ({per_update * 1e3:.1f} ms per update of 9 agents); "
                   f"projected 10,000-episode run {full:6.1f} s (target {target} s); "
                   f"the matmul floor is {floors[config] / per_update:.0%} of an update's time")
+
+    runs, projected, at_floor = train_stage_projection(params, splits, floors)
+    print(f"pipeline `train` stage, {runs} runs two at a time: projected {projected / 60:.0f} min at these speeds "
+          f"(two runs at a time each ran 15-30 % slower than alone in the pipeline so far); {at_floor / 60:.0f} min "
+          f"if every update ran at its matmul floor. Issue 3 asks for 45 min for the whole `dvc repro`, whose "
+          f"evaluate, figures and report stages took ~3.5 min in the last full run")
 
     print("== 2. one MADDPG update of 9 agents, batch 1024 ==")
     tb, tl = update_ratio(params)

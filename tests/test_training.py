@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import signal
 import subprocess
@@ -18,7 +19,16 @@ from replicate import baselines, evaluate, regression
 from replicate.artifacts import CheckpointError, read_text, write_csv
 from replicate.config import load_params, run_config
 from replicate.maddpg import MADDPG
-from replicate.train import CURVE, Trainer, load_actors, make_env, run_identity, train
+from replicate.train import (
+    CURVE,
+    TRAINING_VERSION,
+    Trainer,
+    finished_run,
+    load_actors,
+    make_env,
+    run_identity,
+    train,
+)
 
 from .conftest import ROOT
 
@@ -138,6 +148,19 @@ def test_union_weight_sets_c2_and_the_run_identity(params, regions):
     # options at their neutral default stay out of the identity, so adding one keeps finished runs valid
     paper = run_identity(run_config(params, "paper", "cr"), regions["square"], 10, 0)
     assert not {"union_weight", "select_every", "select_episodes"} & set(paper["params"]["algo"])
+
+
+def test_runs_of_older_training_code_are_not_reused(params, regions, tmp_path):
+    rc = run_config(params, "paper", "cr")
+    out = tmp_path / "run"
+    out.mkdir()
+    identity = run_identity(rc, regions["square"], 10, 0)
+    (out / "actors.pt").write_bytes(b"")
+    (out / "run.json").write_text(json.dumps({**identity, "status": "finished"}))
+    assert finished_run(out, identity) is not None
+    (out / "run.json").write_text(json.dumps({**identity, "training_version": TRAINING_VERSION - 1,
+                                              "status": "finished"}))
+    assert finished_run(out, identity) is None  # trained by older arithmetic: train again
 
 
 def test_corrupt_and_mismatched_checkpoints_are_refused(params, regions, tmp_path):

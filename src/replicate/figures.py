@@ -4,6 +4,7 @@ every configuration (drawing primitives are in ``plots``)."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -115,6 +116,4 @@ def describe_source(outline_path: str) -> str:
 def gallery(paths, notebook_dir: str) -> str:
     """Markdown that shows every figure from its file, linked relative to the executed notebook in
     ``notebook_dir`` (embedding them made the executed notebook 12 MB, rewritten on every run)."""
-    import os
-
     return "\n\n".join(f"**{Path(p).name}**\n\n![{Path(p).stem}]({os.path.relpath(p, notebook_dir)})" for p in paths)

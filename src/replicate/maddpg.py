@@ -22,11 +22,27 @@ from torch import nn
 from .config import MADDPGConfig
 
 
+def stacked_matmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """a @ b for stacks of matrices, [N, M, K] × [N, K, P] → [N, M, P], in the form the CPU BLAS runs fastest.
+
+    ``bmm`` is slow on skinny shapes: ten times slower than needed for a 64 → 1 layer and its gradients
+    (``make bench`` section 0 times them). An inner size of 1 is an outer product, a broadcast multiply; a
+    narrow output (P < 16) is computed transposed, (bᵀ aᵀ)ᵀ, where the wide dimension becomes the output's rows.
+    """
+    if b.shape[1] == 1:
+        return a * b
+    if b.shape[2] < 16:
+        return torch.bmm(b.mT, a.mT).mT
+    return torch.bmm(a, b)
+
+
 class BatchedMLP(nn.Module):
     """N independent ReLU MLPs evaluated at once: x [N, B, in] → [N, B, out].
 
     Glorot-uniform weights and zero biases (openai/maddpg's ``fully_connected`` defaults), drawn from
-    ``generator``.
+    ``generator``. ``forward_saving`` and ``backward`` are the training pass: MADDPG's two losses need only
+    these two-matmul-per-layer gradients, written out so that each matmul takes its fastest form
+    (``stacked_matmul``) and the actor's gradient goes through the critic's own-action columns only.
     """
 
     def __init__(self, n: int, sizes: list[int], generator: torch.Generator):
@@ -40,12 +56,35 @@ class BatchedMLP(nn.Module):
             self.biases.append(nn.Parameter(torch.zeros(n, 1, fan_out)))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        last = len(self.weights) - 1
+        return self.forward_saving(x)[0]
+
+    @torch.no_grad()
+    def forward_saving(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """→ (output [N, B, out], the input of every layer: x and the hidden ReLU outputs, for ``backward``)."""
+        inputs, last = [], len(self.weights) - 1
         for k, (w, b) in enumerate(zip(self.weights, self.biases)):
-            x = torch.baddbmm(b, x, w)
+            inputs.append(x)
+            x = torch.baddbmm(b, x, w) if w.shape[2] >= 16 else stacked_matmul(x, w) + b
             if k < last:
                 x = torch.relu_(x)
-        return x
+        return x, inputs
+
+    @torch.no_grad()
+    def backward(self, inputs: list[torch.Tensor], grad_out: torch.Tensor, weight_grads: bool = True) -> torch.Tensor:
+        """Back-propagate ∂L/∂output [N, B, out]; store ∂L/∂W, ∂L/∂b in each parameter's ``.grad`` (if
+        ``weight_grads``). → ∂L/∂(first layer's pre-activation) [N, B, h₁], from which a caller takes the
+        gradient with respect to any input columns: ∂L/∂x = (that) @ W₁ᵀ."""
+        d = grad_out
+        for k in range(len(self.weights) - 1, -1, -1):
+            w, b = self.weights[k], self.biases[k]
+            if weight_grads:
+                w.grad = stacked_matmul(inputs[k].mT, d).contiguous()  # ∂L/∂W = xᵀ d
+                b.grad = d.sum(dim=1, keepdim=True)
+            if k == 0:
+                return d
+            d = stacked_matmul(d, w.mT)  # ∂L/∂x = d Wᵀ, then through the ReLU (its output is the saved input)
+            torch.ops.aten.threshold_backward.grad_input(d, inputs[k], 0, grad_input=d)
+        return d
 
 
 class ReplayBuffer:
@@ -147,6 +186,9 @@ class MADDPG:
         nets = ("actor", "critic", "actor_target", "critic_target")
         self.params = {k: list(getattr(self, k).parameters()) for k in nets}  # load_state_dict copies in place
         self.agents = torch.arange(n_agents, device=self.device)
+        # rows of critic i's first layer that read agent i's own action: the joint input is [o_1..o_N, a_1..a_N]
+        own = n_agents * obs_dim + self.agents[:, None] * act_dim + torch.arange(act_dim, device=self.device)
+        self.own_action_rows = own  # [N, ad]
 
     @torch.no_grad()
     def policy(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -161,35 +203,41 @@ class MADDPG:
         noisy = mu + sigma * rng.standard_normal(mu.shape) if sigma > 0 else mu
         return np.clip(noisy, -1.0, 1.0).astype(np.float32), mu
 
+    @torch.no_grad()
     def update(self, batch: Batch) -> dict[str, float]:
-        """One gradient step of every agent's critic, then actor, then the soft target update."""
+        """One gradient step of every agent's critic, then actor, then the soft target update.
+
+        The gradients are written out (``BatchedMLP.backward``); ``tests/test_maddpg.py`` checks them against
+        the per-agent autograd loop of ``maddpg_loop``."""
         cfg, n = self.cfg, self.n
         obs, act, rew, next_obs = (t.to(self.device) for t in (batch.obs, batch.act, batch.rew, batch.next_obs))
         bsz = obs.shape[0]
-        own_obs = obs.transpose(0, 1)  # [N, B, od]: o_i for actor i
+        own_obs = obs.transpose(0, 1).contiguous()  # [N, B, od]: o_i for actor i
         r = rew.T if self.reward_mode == "individual" else rew.mean(dim=1).expand(n, bsz)  # [N, B]
         x = obs.reshape(1, bsz, -1).expand(n, bsz, n * self.obs_dim)  # every critic sees all observations
 
         # Critic: y_i = r_i + γ Q'_i(x', μ'_1(o'_1), …, μ'_N(o'_N))   (paper eq. y; no terminal states)
-        with torch.no_grad():
-            next_act = torch.tanh(self.actor_target(next_obs.transpose(0, 1)))  # [N, B, ad]
-            x_next = torch.cat([next_obs.reshape(bsz, -1), next_act.transpose(0, 1).reshape(bsz, -1)], dim=-1)
-            y = r + cfg.gamma * self.critic_target(x_next.expand(n, bsz, -1)).squeeze(-1)
-        q = self.critic(torch.cat([x, act.reshape(1, bsz, -1).expand(n, bsz, -1)], dim=-1)).squeeze(-1)
-        critic_loss = ((q - y) ** 2).mean(dim=1).sum()
-        self.critic_opt.zero_grad(set_to_none=True)
-        critic_loss.backward()
+        next_act = torch.tanh(self.actor_target(next_obs.transpose(0, 1)))  # [N, B, ad]
+        x_next = torch.cat([next_obs.reshape(bsz, -1), next_act.transpose(0, 1).reshape(bsz, -1)], dim=-1)
+        y = r + cfg.gamma * self.critic_target(x_next.expand(n, bsz, -1)).squeeze(-1)
+        q, saved = self.critic.forward_saving(torch.cat([x, act.reshape(1, bsz, -1).expand(n, bsz, -1)], dim=-1))
+        td = q.squeeze(-1) - y  # [N, B]
+        critic_loss = (td**2).mean(dim=1).sum()
+        self.critic.backward(saved, (2.0 / bsz) * td.unsqueeze(-1))  # ∂L/∂Q_i = 2(Q_i − y_i)/B
         clip_grad_per_agent(self.params["critic"], cfg.grad_clip)
         self.critic_opt.step()
 
         # Actor: ∇θ_i J = E[∇θ_i μ_i(o_i) ∇a_i Q_i(x, a_1, …, μ_i(o_i), …, a_N)] + 1e-3·mean(pre-tanh²)
-        pre = self.actor(own_obs)  # [N, B, ad]
+        pre, actor_saved = self.actor.forward_saving(own_obs)  # [N, B, ad]
+        mu = torch.tanh(pre)
         joint = act.unsqueeze(0).repeat(n, 1, 1, 1)  # [N, B, N, ad]: critic i sees the batch's actions ...
-        joint[self.agents, :, self.agents] = torch.tanh(pre)  # ... except its own agent's, μ_i(o_i)
-        q_pi = self.critic(torch.cat([x, joint.flatten(2)], dim=-1)).squeeze(-1)
-        actor_loss = (-q_pi.mean(dim=1) + cfg.actor_reg * (pre**2).mean(dim=(1, 2))).sum()
-        self.actor_opt.zero_grad(set_to_none=True)
-        actor_loss.backward(inputs=self.params["actor"])  # through Q into μ_i only, not into Q's weights
+        joint[self.agents, :, self.agents] = mu  # ... except its own agent's, μ_i(o_i)
+        q_pi, saved = self.critic.forward_saving(torch.cat([x, joint.flatten(2)], dim=-1))
+        d_z1 = self.critic.backward(saved, torch.full_like(q_pi, -1.0 / bsz), weight_grads=False)  # −mean Q_i
+        d_mu = stacked_matmul(d_z1, self.critic.weights[0][self.agents[:, None], self.own_action_rows].mT)
+        d_pre = d_mu * (1.0 - mu * mu) + (2.0 * cfg.actor_reg / pre[0].numel()) * pre  # through tanh; + reg
+        self.actor.backward(actor_saved, d_pre)  # through μ_i only, not into Q's weights
+        actor_loss = (-q_pi.squeeze(-1).mean(dim=1) + cfg.actor_reg * (pre**2).mean(dim=(1, 2))).sum()
         clip_grad_per_agent(self.params["actor"], cfg.grad_clip)
         self.actor_opt.step()
 
@@ -197,7 +245,7 @@ class MADDPG:
         soft_update(self.params["actor_target"], self.params["actor"], cfg.tau)
         return {
             "critic_loss": critic_loss.item() / n,
-            "q_abs": q.detach().abs().mean().item(),
+            "q_abs": q.abs().mean().item(),
             "actor_loss": actor_loss.item() / n,
         }
 

@@ -30,6 +30,10 @@ from .regions import Region
 
 DIAGNOSTICS = ("critic_loss", "q_abs", "saturated", "noise")
 CURVE = "curve.csv.gz"  # the per-episode curve of a run, in its folder
+# Part of every run's identity: raise it with any change that alters the numbers a run produces (the update's
+# arithmetic, the environment, the rewards), so that runs trained by older code are retrained, not reused.
+# 1: autograd update (sessions 1-5); 2: hand-written gradients in their fastest matmul forms (maddpg.py).
+TRAINING_VERSION = 2
 
 
 def curve_header(n_agents: int) -> list[str]:
@@ -47,6 +51,7 @@ def noise_sigma(cfg, progress: float) -> float:
 def run_identity(rc: RunConfig, region: Region, episodes: int, seed: int) -> dict:
     """What makes two runs the same run: checked on resume, and by the pipeline to skip finished runs."""
     return {
+        "training_version": TRAINING_VERSION,
         "config": rc.config_name,
         "method": rc.method_name,
         "region": region.name,
