@@ -38,6 +38,31 @@ def test_batched_mlp_equals_separate_networks():
         torch.testing.assert_close(out[i], h)
 
 
+@pytest.mark.parametrize("sizes", [[6, 32, 32, 1], [4, 32, 32, 2], [3, 8, 20, 17]])
+def test_hand_written_gradients_equal_autograd(sizes):
+    """BatchedMLP.backward against autograd, for the gradient of every parameter and of the input. Adam would
+    hide a gradient off by a constant factor in an end-to-end test, so the gradients are checked here directly.
+    The sizes reach every form of ``stacked_matmul``: an output of 1 (outer product), of 2 (transposed) and
+    wide layers."""
+    net = BatchedMLP(3, sizes, torch.Generator().manual_seed(0))
+    x = torch.randn(3, 7, sizes[0], requires_grad=True)
+    grad_out = torch.randn(3, 7, sizes[-1])
+    out, saved = net.forward_saving(x.detach())
+    d_z1 = net.backward(saved, grad_out)
+    mine = [p.grad.clone() for p in net.parameters()]
+    mine_x = d_z1 @ net.weights[0].detach().mT
+    net.zero_grad()
+    h = x
+    for k, (w, b) in enumerate(zip(net.weights, net.biases)):
+        h = h @ w + b
+        h = torch.relu(h) if k < len(net.weights) - 1 else h
+    torch.testing.assert_close(out, h.detach())
+    (h * grad_out).sum().backward()
+    for p, g in zip(net.parameters(), mine):
+        torch.testing.assert_close(g, p.grad)
+    torch.testing.assert_close(mine_x, x.grad)
+
+
 @pytest.mark.parametrize("mode", ["individual", "shared"])
 def test_batched_update_equals_per_agent_loop(params, mode):
     cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=64, actor_lr=1e-3, critic_lr=1e-3)
@@ -54,10 +79,30 @@ def test_batched_update_equals_per_agent_loop(params, mode):
         for k, (w, b) in enumerate(zip(batched.critic.weights, batched.critic.biases)):
             torch.testing.assert_close(w[i].T, loop.critics[i][2 * k].weight, rtol=1e-4, atol=1e-5)
             torch.testing.assert_close(b[i, 0], loop.critics[i][2 * k].bias, rtol=1e-4, atol=1e-5)
-        for k, w in enumerate(batched.actor.weights):
+        for k, (w, b) in enumerate(zip(batched.actor.weights, batched.actor.biases)):
             torch.testing.assert_close(w[i].T, loop.actors[i][2 * k].weight, rtol=1e-4, atol=1e-5)
+            torch.testing.assert_close(b[i, 0], loop.actors[i][2 * k].bias, rtol=1e-4, atol=1e-5)
         for k, w in enumerate(batched.actor_target.weights):
             torch.testing.assert_close(w[i].T, loop.actor_targets[i][2 * k].weight, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("mode", ["individual", "shared"])
+def test_update_gradients_equal_the_per_agent_loop(params, mode):
+    """The gradients of both losses inside ``update`` (learning rates 0 and no clipping, so they are left in
+    ``.grad`` unchanged and the actor sees the same critic), against the autograd loss of each agent."""
+    cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=64, actor_lr=0.0, critic_lr=0.0,
+                              grad_clip=1e9)
+    batched = MADDPG(4, 4, 2, cfg, mode, seed=5)
+    loop = LoopMADDPG(batched)
+    rng = np.random.default_rng(1)
+    batch = filled_buffer(4, 4, rng).sample(rng, cfg.batch_size)
+    batched.update(batch)
+    loop.update(batch)
+    for net, nets in ((batched.critic, loop.critics), (batched.actor, loop.actors)):
+        for i in range(4):
+            for k, (w, b) in enumerate(zip(net.weights, net.biases)):
+                torch.testing.assert_close(w.grad[i].T, nets[i][2 * k].weight.grad, rtol=1e-4, atol=1e-6)
+                torch.testing.assert_close(b.grad[i, 0], nets[i][2 * k].bias.grad, rtol=1e-4, atol=1e-6)
 
 
 def test_gradient_clip_and_soft_update(params):

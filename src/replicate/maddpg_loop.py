@@ -63,7 +63,7 @@ class LoopMADDPG:
             q = self.critics[i](torch.cat([obs.reshape(bsz, -1), joint.reshape(bsz, -1)], dim=-1))
             actor_loss = -q.mean() + cfg.actor_reg * (pre**2).mean()
             self.actor_opts[i].zero_grad()
-            actor_loss.backward()
+            actor_loss.backward(inputs=list(self.actors[i].parameters()))  # the critic keeps its own grads
             for p in self.actors[i].parameters():
                 torch.nn.utils.clip_grad_norm_([p], cfg.grad_clip)
             self.actor_opts[i].step()
