@@ -235,9 +235,9 @@ def main(argv=None) -> int:
 
     runs, projected, at_floor = train_stage_projection(params, splits, floors)
     print(f"pipeline `train` stage, {runs} runs two at a time: projected {projected / 60:.0f} min at these speeds "
-          f"(two runs at a time each ran 15-30 % slower than alone in the pipeline so far); {at_floor / 60:.0f} min "
-          f"if every update ran at its matmul floor. Issue 3 asks for 45 min for the whole `dvc repro`, whose "
-          f"evaluate, figures and report stages took ~3.5 min in the last full run")
+          f"(two runs at a time share the memory bus, so the stage runs a little longer: README has the measured "
+          f"time); {at_floor / 60:.0f} min if every update ran at its matmul floor. Issue 3 asks for 45 min for "
+          f"the whole `dvc repro`, of which `evaluate`, `figures` and `report` take a few minutes")
 
     print("== 2. one MADDPG update of 9 agents, batch 1024 ==")
     tb, tl = update_ratio(params)
