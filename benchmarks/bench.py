@@ -8,7 +8,8 @@
    10,000-episode run (issue 4's budget for `tuned`: 180 s on one core). From these, the projected `train` stage
    of the pipeline (every run of params.yaml's matrix and ablation, two at a time), and the same with every
    update at its matmul floor: how far issue 3's 45 minutes for the whole `dvc repro` is on this machine.
-2. One update of all 9 agents: the batched MADDPG against the per-agent loop (``maddpg_loop``), as a ratio.
+2. One update of all 9 agents, per configuration: the batched MADDPG (hand-written gradients) against the same
+   batched update through autograd (as in sessions 1-5) and the per-agent loop (``maddpg_loop``), as ratios.
 3. Environment throughput (agent-steps per second, random actions) against PettingZoo MPE2 ``simple_spread_v3``
    with N = 9 and continuous actions, as a ratio.
 
@@ -29,7 +30,7 @@ import torch
 
 from replicate.config import load_params, run_config
 from replicate.env import CoverageEnv
-from replicate.maddpg import MADDPG, ReplayBuffer
+from replicate.maddpg import MADDPG, ReplayBuffer, clip_grad_per_agent, soft_update
 from replicate.maddpg_loop import LoopMADDPG
 from replicate.pipeline import ablation_cells
 from replicate.regions import make_region
@@ -160,13 +161,58 @@ def update_breakdown(params, config: str, updates: int = 5) -> dict[str, tuple[f
     return {k: (v / updates * 1e3, flops[k] / v / 1e9 if k in flops else float("nan")) for k, v in seconds.items()}
 
 
-def update_ratio(params):
-    batched, batch = agent_and_batch(params, "paper")
-    loop = LoopMADDPG(batched)
-    batched.update(batch), loop.update(batch)
-    tb = best_of(lambda: [batched.update(batch) for _ in range(5)]) / 5
-    tl = best_of(lambda: [loop.update(batch) for _ in range(5)]) / 5
-    return tb, tl
+class AutogradMADDPG(MADDPG):
+    """The batched update as it was before the gradients were written out (sessions 1-5): the same losses,
+    differentiated by autograd, with ``baddbmm`` in every layer. The reference for the hand-written update."""
+
+    def update(self, batch):
+        cfg, n, bsz = self.cfg, self.n, batch.obs.shape[0]
+        obs, act, rew, next_obs = batch.obs, batch.act, batch.rew, batch.next_obs
+        r = rew.T if self.reward_mode == "individual" else rew.mean(dim=1).expand(n, bsz)
+        x = obs.reshape(1, bsz, -1).expand(n, bsz, n * self.obs_dim)
+
+        def mlp(net, h):
+            for k, (w, b) in enumerate(zip(net.weights, net.biases)):
+                h = torch.baddbmm(b, h, w)
+                h = torch.relu(h) if k < len(net.weights) - 1 else h
+            return h
+
+        with torch.no_grad():
+            next_act = torch.tanh(mlp(self.actor_target, next_obs.transpose(0, 1)))
+            x_next = torch.cat([next_obs.reshape(bsz, -1), next_act.transpose(0, 1).reshape(bsz, -1)], dim=-1)
+            y = r + cfg.gamma * mlp(self.critic_target, x_next.expand(n, bsz, -1)).squeeze(-1)
+        q = mlp(self.critic, torch.cat([x, act.reshape(1, bsz, -1).expand(n, bsz, -1)], dim=-1)).squeeze(-1)
+        self.critic_opt.zero_grad(set_to_none=True)
+        ((q - y) ** 2).mean(dim=1).sum().backward()
+        clip_grad_per_agent(self.params["critic"], cfg.grad_clip)
+        self.critic_opt.step()
+        pre = mlp(self.actor, obs.transpose(0, 1))
+        joint = act.unsqueeze(0).repeat(n, 1, 1, 1)
+        joint[self.agents, :, self.agents] = torch.tanh(pre)
+        q_pi = mlp(self.critic, torch.cat([x, joint.flatten(2)], dim=-1)).squeeze(-1)
+        self.actor_opt.zero_grad(set_to_none=True)
+        (-q_pi.mean(dim=1) + cfg.actor_reg * (pre**2).mean(dim=(1, 2))).sum().backward(inputs=self.params["actor"])
+        clip_grad_per_agent(self.params["actor"], cfg.grad_clip)
+        self.actor_opt.step()
+        soft_update(self.params["critic_target"], self.params["critic"], cfg.tau)
+        soft_update(self.params["actor_target"], self.params["actor"], cfg.tau)
+
+
+def update_times(params, config: str, rounds: int = 5) -> dict[str, float]:
+    """Seconds per update of 9 agents: the batched MADDPG (hand-written gradients), the same batched update
+    through autograd, and the per-agent loop, timed alternately (best of 5 × 5 updates, median over ``rounds``)
+    so that the machine's drift hits all three alike."""
+    batched, batch = agent_and_batch(params, config)
+    rivals = {"batched": batched, "batched, autograd": AutogradMADDPG(9, batched.obs_dim, 2, batched.cfg,
+                                                                       "individual", seed=0),
+              "per-agent loop": LoopMADDPG(batched)}
+    times = {k: [] for k in rivals}
+    for agent in rivals.values():
+        agent.update(batch)
+    for _ in range(rounds):
+        for k, agent in rivals.items():
+            times[k].append(best_of(lambda agent=agent: [agent.update(batch) for _ in range(5)]) / 5)
+    return {k: float(np.median(v)) for k, v in times.items()}
 
 
 def env_throughput(params, square, n_envs: int, seconds=3.0):
@@ -239,9 +285,13 @@ def main(argv=None) -> int:
           f"time); {at_floor / 60:.0f} min if every update ran at its matmul floor. Issue 3 asks for 45 min for "
           f"the whole `dvc repro`, of which `evaluate`, `figures` and `report` take a few minutes")
 
-    print("== 2. one MADDPG update of 9 agents, batch 1024 ==")
-    tb, tl = update_ratio(params)
-    print(f"batched {tb * 1e3:.1f} ms, per-agent loop {tl * 1e3:.1f} ms: batched is {tl / tb:.2f}x faster")
+    print("== 2. one MADDPG update of 9 agents ==")
+    for config in OBS_DIM:
+        t = update_times(params, config)
+        b = t["batched"]
+        print(f"{config} (batch {params.configs[config].maddpg.batch_size}): " + "; ".join(
+            f"{k} {v * 1e3:.1f} ms" + ("" if k == "batched" else f" ({v / b:.2f}x the batched time)")
+            for k, v in t.items()))
 
     print("== 3. environment throughput, random actions, agent-steps per second ==")
     ref = mpe2_throughput()
