@@ -128,7 +128,8 @@ def update_gflop(params, config: str) -> float:
 def update_breakdown(params, config: str, updates: int = 5) -> dict[str, tuple[float, float]]:
     """Where one update's time goes: {kind: (ms per update, matmul GFLOPS or nan)}, timing every aten call
     (``TorchDispatchMode``). Matmuls are split into wide ones (every dimension ≥ 16) and skinny ones (an output
-    width or inner size below 16: the last layers and their gradients)."""
+    width or inner size below 16: the last layers and their gradients). An inner size of 1 is a broadcast
+    multiply in ``maddpg.stacked_matmul``, so it counts with the elementwise ops."""
     from collections import defaultdict
 
     from torch.utils._python_dispatch import TorchDispatchMode
