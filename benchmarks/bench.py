@@ -32,7 +32,7 @@ from replicate.config import load_params, run_config
 from replicate.env import CoverageEnv
 from replicate.maddpg import MADDPG, ReplayBuffer, clip_grad_per_agent, soft_update
 from replicate.maddpg_loop import LoopMADDPG
-from replicate.pipeline import ablation_cells
+from replicate.pipeline import matrix_cells
 from replicate.regions import make_region
 from replicate.train import Trainer
 
@@ -67,23 +67,23 @@ def training_split(params, square, config: str, method: str, episodes: int):
 def train_stage_projection(params, splits, floors, workers: int = 2) -> tuple[int, float, float]:
     """(runs, projected seconds, seconds with updates at the matmul floor) of the pipeline's ``train`` stage:
     every cell of ``pipeline`` in params.yaml plus the ablation, × seeds, ``workers`` runs at a time. A run costs
-    the square's environment time of its config family and method (``splits``) plus its update count times the
-    measured update of the same batch size (``paper``'s for batch 1024, ``tuned``'s for 128)."""
+    the square's environment time of its config family and method (``splits``), scaled by its region's episode
+    length, plus its update count times the measured update of the same batch size (``paper``'s for batch 1024,
+    ``tuned``'s for 128)."""
     import yaml
 
     matrix = yaml.safe_load(Path("params.yaml").read_text())["pipeline"]
-    cells = [(c, m, r) for c in matrix["configs"] for m in matrix["methods"] for r in matrix["regions"]]
-    cells += ablation_cells(params) if matrix["ablation"] else []
-    by_batch = {params.configs[f].maddpg.batch_size: f for f in OBS_DIM}
+    cells = matrix_cells(params, matrix["configs"], matrix["methods"], matrix["regions"], matrix["ablation"])
+    by_batch = {params.configs[f].maddpg.batch_size: f for f in CONFIGS}
     total = floor = 0.0
-    for config, method, _ in cells:
-        rc = run_config(params, config, method)
+    for config, method, region in cells:
+        rc = run_config(params, config, method, region)
         cfg = rc.algo.maddpg
         family = by_batch[cfg.batch_size]
         env_s = splits[("paper" if config == "paper" else "tuned", method)][0]
         per_update = splits[(family, method)][1]
         updates = (params.train.episodes * rc.world.episode_length - cfg.learning_starts) / cfg.update_every
-        env = env_s * params.train.episodes / 1000
+        env = env_s * params.train.episodes / 1000 * rc.world.episode_length / params.world.episode_length
         total += env + updates * per_update
         floor += env + updates * floors[family]
     runs = len(cells) * len(params.train.seeds)
@@ -101,18 +101,23 @@ def machine_gemm_gflops(seconds=1.0) -> float:
     return 2 * 9 * 128 * 54 * 64 * calls / (time.perf_counter() - t) / 1e9
 
 
-OBS_DIM = {"paper": 2, "tuned": 4}  # own position; own position and velocity (env.CoverageEnv.obs_dim)
+CONFIGS = ("paper", "tuned")
+
+
+def obs_dim(params, config: str) -> int:
+    """The observation size of ``config`` (own position, or own position and velocity: ``env.CoverageEnv``)."""
+    return 2 if params.configs[config].observation == "position" else 4
 
 
 def agent_and_batch(params, config: str) -> tuple[MADDPG, object]:
     """A fresh MADDPG of ``config`` (9 agents, CR's per-agent rewards) and one minibatch of random transitions."""
-    cfg, obs_dim = params.configs[config].maddpg, OBS_DIM[config]
+    cfg, od = params.configs[config].maddpg, obs_dim(params, config)
     rng = np.random.default_rng(0)
     size = 4 * cfg.batch_size
-    buf = ReplayBuffer(size, 9, obs_dim, 2)
-    buf.add(rng.normal(size=(size, 9, obs_dim)).astype(np.float32), rng.uniform(-1, 1, (size, 9, 2)).astype(np.float32),
-            rng.normal(size=(size, 9)).astype(np.float32), rng.normal(size=(size, 9, obs_dim)).astype(np.float32))
-    return MADDPG(9, obs_dim, 2, cfg, "individual", seed=0), buf.sample(rng, cfg.batch_size)
+    buf = ReplayBuffer(size, 9, od, 2)
+    buf.add(rng.normal(size=(size, 9, od)).astype(np.float32), rng.uniform(-1, 1, (size, 9, 2)).astype(np.float32),
+            rng.normal(size=(size, 9)).astype(np.float32), rng.normal(size=(size, 9, od)).astype(np.float32))
+    return MADDPG(9, od, 2, cfg, "individual", seed=0), buf.sample(rng, cfg.batch_size)
 
 
 def update_gflop(params, config: str) -> float:
@@ -260,7 +265,7 @@ def main(argv=None) -> int:
     gflops = machine_gemm_gflops()
     print(f"matmul throughput {gflops:.1f} GFLOPS; per-run times below scale with it across machines")
     floors = {}
-    for config in OBS_DIM:
+    for config in CONFIGS:
         gflop = update_gflop(params, config)
         floors[config] = gflop / gflops
         print(f"{config}: one update of 9 agents is {gflop:.3f} GFLOP of matmuls: {floors[config] * 1e3:.1f} ms "
@@ -287,7 +292,7 @@ def main(argv=None) -> int:
           f"the whole `dvc repro`, of which `evaluate`, `figures` and `report` take a few minutes")
 
     print("== 2. one MADDPG update of 9 agents ==")
-    for config in OBS_DIM:
+    for config in CONFIGS:
         t = update_times(params, config)
         b = t["batched"]
         print(f"{config} (batch {params.configs[config].maddpg.batch_size}): " + "; ".join(

@@ -65,6 +65,7 @@ def write(tmp_path, mutate):
         (lambda r: r["ablation"]["changes"].update(typo=["maddpg.gama"]), "ablation.changes.typo: unknown key"),
         (lambda r: r["ablation"].update(base="best"), "ablation: unknown config 'best'"),
         (lambda r: r["ablation"].update(regions=["atlantis"]), "unknown region"),
+        (lambda r: r["regions"]["square"].update(episode_length=0), "regions.square.episode_length must be at least 1"),
     ],
 )
 def test_bad_params_are_refused(tmp_path, mutate, message):
@@ -83,6 +84,18 @@ def test_overrides_and_selection(params):
         run_config(params, "paper", "xx")
     with pytest.raises(ConfigError, match="no such parameters file"):
         load_params(ROOT / "nope.yaml")
+
+
+def test_a_region_may_set_its_own_episode_length(params):
+    """``regions.NAME.episode_length`` is the T of every run and baseline on that region; the others keep the
+    world's."""
+    for name, spec in params.regions.items():
+        t = run_config(params, "paper", "cr", name).world.episode_length
+        assert t == (spec.episode_length or params.world.episode_length)
+    assert params.regions["rectangle"].episode_length == 100
+    assert run_config(params, "tuned", "sw", "rectangle").world.episode_length == 100
+    assert run_config(params, "tuned", "cr").world.episode_length == params.world.episode_length
+    assert run_config(params, "tuned", "cr", "a/lake.geojson").world.episode_length == params.world.episode_length
 
 
 def test_configs_are_frozen(params):

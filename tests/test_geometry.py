@@ -66,6 +66,51 @@ def test_marginal_contribution_matches_shapely(name, regions, geometries, params
     assert np.abs(union - full).max() < 0.005 * region.area
 
 
+def raster_counts(geo, xy, area):
+    """The raster kernel's outputs by brute force: every cell of every stamp visited (no clipping) →
+    (excess cells [E], cells shared with another stamp [E, N]); stamps in agent order as in the kernel."""
+    n_env, n = area.shape
+    excess, shared = np.zeros(n_env), np.zeros((n_env, n))
+    diff = xy[:, :, None, :] - xy[:, None, :, :]
+    close = (diff**2).sum(-1) < (2 * geo.radius) ** 2
+    close[:, np.arange(n), np.arange(n)] = False
+    involved = close.any(axis=2) & (area > 0)
+    for e in range(n_env):
+        stamps = {}
+        for a in np.nonzero(involved[e])[0]:
+            u = (xy[e, a] - geo.raster_origin) / geo.raster_h
+            cell = np.floor(u).astype(int)
+            q = ((u - cell) * geo.subpixel).astype(int)
+            k = q[0] * geo.subpixel + q[1]
+            cols = np.arange(2 * geo.stencil_reach + 1)
+            stamps[a] = {(cell[0] + c - geo.stencil_reach) * geo.ny + cell[1] + y
+                         for c in cols for y in range(geo.stencil_lo[k, c], geo.stencil_hi[k, c] + 1)
+                         if geo.mask[(cell[0] + c - geo.stencil_reach) * geo.ny + cell[1] + y]}
+        for a, cells in stamps.items():
+            others = set().union(*(stamps[b] for b in stamps if b != a))
+            earlier = set().union(*(stamps[b] for b in stamps if b < a))
+            excess[e] += len(cells & earlier)
+            shared[e, a] = len(cells & others)
+    return excess, shared
+
+
+@pytest.mark.parametrize("name", REGIONS)
+def test_raster_kernel_counts_every_shared_cell(name, regions, geometries):
+    """The kernel visits only the part of each stamp that other stamps' boxes reach: its counts must equal
+    those of visiting every cell of every stamp."""
+    region = regions[name].polygon
+    xy = random_configs(region, np.random.default_rng(4), n_env=24)
+    geo = geometries[name]
+    area = geo.cover_terms(xy).area
+    union, marginal = geo.union_area(xy, area, marginal=True)
+    excess, shared = raster_counts(geo, xy, area)
+    h2 = geo.raster_h**2
+    np.testing.assert_allclose(union, area.sum(axis=1) - excess * h2, rtol=0, atol=1e-12)
+    expected = np.where(shared > 0, np.maximum(area - shared * h2, 0.0), area)
+    np.testing.assert_allclose(marginal, expected, rtol=0, atol=1e-12)
+    assert excess.sum() > 0 and (shared == 0).any()  # both overlapping and lone stamps were drawn
+
+
 def test_union_is_exact_without_overlaps(regions, geometries, params):
     """No two coverage polygons overlap → the union is the sum of the per-agent terms, no raster involved."""
     xy = np.array([[[x, y] for x in (-1.0, 0.0, 1.0) for y in (-1.0, 0.0, 1.0)]])  # the 3 × 3 grid

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
 import pytest
 import torch
 
-from replicate.maddpg import MADDPG, BatchedMLP, ReplayBuffer, soft_update
+from replicate.maddpg import MADDPG, BatchedMLP, ReplayBuffer, adam_step, soft_update
 from replicate.maddpg_loop import LoopMADDPG
 
 
@@ -118,6 +119,26 @@ def test_gradient_clip_and_soft_update(params):
     soft_update(list(a.parameters()), list(b.parameters()), 1.0)
     for p, q in zip(a.parameters(), b.parameters()):
         torch.testing.assert_close(p, q)
+
+
+def test_adam_step_is_the_optimizer_step():
+    """The unwrapped fused Adam step gives the optimiser's numbers bit for bit, also on state loaded from a
+    checkpoint (which replaces the state tensors)."""
+    g = torch.Generator().manual_seed(0)
+    nets = [BatchedMLP(3, [4, 8, 2], torch.Generator().manual_seed(0)) for _ in range(2)]
+    opts = [torch.optim.Adam(n.parameters(), lr=0.01, fused=True) for n in nets]
+    for step in range(6):
+        grads = [torch.randn(p.shape, generator=g) for p in nets[0].parameters()]
+        for net in nets:
+            for p, grad in zip(net.parameters(), grads):
+                p.grad = grad.clone()
+        opts[0].step()
+        adam_step(opts[1])
+        if step == 2:
+            opts[1].load_state_dict(copy.deepcopy(opts[0].state_dict()))  # as from a checkpoint file
+        for p, q in zip(*(n.parameters() for n in nets)):
+            assert torch.equal(p, q)
+    assert opts[1].state_dict()["state"][0]["step"].item() == 6
 
 
 def test_individual_and_shared_rewards_differ(params):

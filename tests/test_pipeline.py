@@ -123,7 +123,7 @@ def test_dvc_repro_end_to_end(tmp_path):
     assert outline["features"][0]["properties"]["source"] == "fallback"
     assert "bundled" in (repo / "notebooks" / "executed" / "fetch_outline.ipynb").read_text()
     report = (repo / "REPORT.md").read_text()
-    assert "The paper's claims" in report and "| baseline | region | coverage" in report
+    assert "The paper's claims" in report and "| baseline | region | steps | coverage" in report
     assert report.count("![") == len(figures)
     assert "## Targets of the `tuned` configuration" in report
     ablation = report.split("## Ablation")[1].split("\n## ")[0]

@@ -27,7 +27,8 @@ from .test_training import SMALL, cli, small_trainer
 @pytest.fixture(scope="module")
 def small_run(tmp_path_factory, params, regions):
     out = tmp_path_factory.mktemp("toolkit") / "run"
-    small_trainer(params, regions["square"], out, seed=2, episodes=30).run()
+    # observing velocity too (`tuned` observes position only), so that export and `act --real` scale both parts
+    small_trainer(params, regions["square"], out, seed=2, episodes=30, observation="position_velocity").run()
     return out
 
 

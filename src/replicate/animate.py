@@ -22,8 +22,8 @@ def animate_run(run_dir: str | Path, params: Params, region: Region, out: str | 
 
     net, meta = load_actors(Path(run_dir) / "actors.pt")
     ident = meta["identity"]
-    rc = run_config(params, ident["config"], ident["method"])
-    env = eval_env(region, rc, 1, rc.algo.observation)
+    rc = run_config(params, ident["config"], ident["method"], ident["region"])
+    env = eval_env(region, rc, 1, meta["observation"])  # what the actors were trained to observe
     trace = rollout(env, actor_policy(net, meta["observation"]), rc.world.episode_length,
                     params.evaluate.seed if seed is None else seed)["positions"][:, 0]  # [T + 1, N, 2]
     c = rc.coverage

@@ -42,7 +42,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from .train import train
 
     params = load_params(args.params, overrides(args.set))
-    rc = run_config(params, args.config, args.method)
+    rc = run_config(params, args.config, args.method, args.region)
     region = resolve_region(args.region, params)
     episodes = args.episodes if args.episodes is not None else params.train.episodes
     out = Path(args.out or f"runs/{args.config}-{args.method}-{region.name}-s{args.seed}")

@@ -86,6 +86,7 @@ class MADDPGConfig:
     noise_start: float
     noise_end: float
     noise_decay: float
+    lr_end: float = 1.0  # learning rates fall linearly to this fraction of actor_lr/critic_lr by the last episode
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,7 @@ class RegionSpec:
     width: float | None = None
     height: float | None = None
     path: str | None = None
+    episode_length: int | None = None  # T for this region (every method and baseline); None = world's
 
 
 @dataclass(frozen=True)
@@ -196,6 +198,9 @@ class Params:
             raise ConfigError(f"ablation.regions: unknown region(s) {unknown}")
         for change in ab.changes:
             ablation_config(self, change)  # every key must exist
+        for name, spec in self.regions.items():
+            if spec.episode_length is not None and spec.episode_length < 1:
+                raise ConfigError(f"regions.{name}.episode_length must be at least 1, got {spec.episode_length}")
 
     def all_configs(self) -> dict[str, AlgoConfig]:
         """The written configs plus one derived config per ablation change."""
@@ -340,15 +345,21 @@ def load_params(path: str | Path = DEFAULT_PARAMS, overrides: Mapping[str, Any] 
     return dataclasses.replace(params, stages=stages)
 
 
-def run_config(params: Params, config: str, method: str) -> RunConfig:
-    """Select one configuration (``paper``/``tuned``/an ablation of it) and method (``sw``/``cr``)."""
+def run_config(params: Params, config: str, method: str, region: str | None = None) -> RunConfig:
+    """Select one configuration (``paper``/``tuned``/an ablation of it) and method (``sw``/``cr``), on
+    ``region`` (a name of ``params.regions``, whose ``episode_length`` replaces the world's; any other name or
+    None keeps the world's)."""
     configs = params.all_configs()
     if config not in configs:
         raise ConfigError(f"unknown config {config!r}; known: {sorted(configs)}")
     if method not in params.methods:
         raise ConfigError(f"unknown method {method!r}; known: {sorted(params.methods)}")
+    world = params.world
+    spec = params.regions.get(region) if region is not None else None
+    if spec is not None and spec.episode_length is not None:
+        world = dataclasses.replace(world, episode_length=spec.episode_length)
     return RunConfig(
-        world=params.world,
+        world=world,
         coverage=params.coverage,
         sw_reward=params.sw_reward,
         cr_reward=params.cr_reward,

@@ -80,7 +80,7 @@ def evaluate_run(run_dir: str | Path, params: Params, region: Region, actors: st
     run_dir = Path(run_dir)
     net, meta = load_actors(run_dir / actors)
     ident = meta["identity"]
-    rc = run_config(params, ident["config"], ident["method"])
+    rc = run_config(params, ident["config"], ident["method"], ident["region"])
     ev = params.evaluate
     env = eval_env(region, rc, ev.episodes, rc.algo.observation)
     if meta["observation"] != rc.algo.observation:
@@ -121,7 +121,7 @@ def evaluate_baseline(name: str, params: Params, region: Region, config: str = "
     """Metrics of a baseline with the same physics, T and start as the runs of ``config``."""
     if name not in BASELINES:
         raise ConfigError(f"unknown baseline {name!r}; known: {list(BASELINES)}")
-    rc = run_config(params, config, "cr")
+    rc = run_config(params, config, "cr", region.name)
     ev = params.evaluate
     env = eval_env(region, rc, ev.episodes)
     steps = rc.world.episode_length
@@ -176,8 +176,12 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
     metrics_dir = Path(metrics_dir)
     params = load_params(params_path)
     jobs = []
+    known = params.all_configs()
     for run in sorted(p for p in Path(runs_dir).iterdir() if (p / "actors.pt").exists()):
         ident = json.loads((run / "run.json").read_text())
+        if ident["config"] not in known:  # e.g. the runs of an ablation change since removed from params.yaml
+            print(f"evaluate: skipped {run.name}: its config {ident['config']!r} is not in params.yaml")
+            continue
         curve = read_curve(run / CURVE)
         artifacts.write_csv(metrics_dir / "curves" / f"{run.name}.csv", ["episode", "team_reward", "coverage"],
                             zip(curve["episode"].astype(int), curve["team_reward"], curve["coverage"]))
@@ -232,6 +236,7 @@ def summarise_metrics(results) -> dict:
                 "nearest_neighbour": r["nearest_neighbour"]["mean"],
                 "fraction_inside": r["fraction_inside"]["mean"],
                 "ceiling": r["ceiling"],
+                "steps": r["steps"],
             }
     runs = {}
     for key, rs in sorted(groups.items()):

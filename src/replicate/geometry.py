@@ -171,24 +171,27 @@ class CoverageGeometry:
         cy = self.raster_origin[1] + (np.arange(self.ny) + 0.5) * h
         gx, gy = np.meshgrid(cx, cy, indexing="ij")
         self.mask = shapely.contains_xy(self.region, gx.ravel(), gy.ravel())  # [nx * ny], x-major
-        # Stencils: cells whose centre lies in K for an agent at sub-pixel offset ((q + 0.5) / subpixel) h,
-        # as flat index offsets; row k holds stencil_len[k] of them.
+        # Stencils: cells whose centre lies in K for an agent at sub-pixel offset ((q + 0.5) / subpixel) h. K is
+        # convex, so each column dx of a stencil is one run of rows: stencil_lo/hi [subpixel², 2w + 1] hold the
+        # run's first and last dy (lo > hi: an empty column).
         d = np.arange(-w, w + 1)
         dx, dy = np.meshgrid(d, d, indexing="ij")
         normals = self.offsets + np.roll(self.offsets, -1, axis=0)
         normals /= np.linalg.norm(normals, axis=1, keepdims=True)  # edge normals of K
         apothem = self.radius * np.cos(np.pi / self.edges)
-        stencils = []
+        self.stencil_reach = w
+        self.stencil_lo = np.full((subpixel * subpixel, 2 * w + 1), w + 1, np.int64)
+        self.stencil_hi = np.full((subpixel * subpixel, 2 * w + 1), -w - 1, np.int64)
         for qx in range(subpixel):
             for qy in range(subpixel):
                 fx, fy = (qx + 0.5) / subpixel, (qy + 0.5) / subpixel
-                rel = np.stack([(dx + 0.5 - fx) * h, (dy + 0.5 - fy) * h], axis=-1).reshape(-1, 2)
-                inside = (rel @ normals.T).max(axis=1) <= apothem
-                stencils.append(dx.ravel()[inside] * self.ny + dy.ravel()[inside])
-        self.stencil_len = np.array([len(s) for s in stencils], np.int64)
-        self.stencil = np.zeros((subpixel * subpixel, self.stencil_len.max()), np.int64)
-        for k, offsets in enumerate(stencils):
-            self.stencil[k, : len(offsets)] = offsets
+                rel = np.stack([(dx + 0.5 - fx) * h, (dy + 0.5 - fy) * h], axis=-1)
+                inside = (rel @ normals.T).max(axis=-1) <= apothem  # [2w + 1, 2w + 1]
+                k = qx * subpixel + qy
+                for col in np.nonzero(inside.any(axis=1))[0]:
+                    rows = d[inside[col]]
+                    assert len(rows) == rows[-1] - rows[0] + 1  # one run per column (K convex)
+                    self.stencil_lo[k, col], self.stencil_hi[k, col] = rows[0], rows[-1]
         self._tags = np.zeros(self.nx * self.ny, np.int64)  # scratch grids of the raster kernel
         self._owner = np.zeros(self.nx * self.ny, np.int64)
         self._epoch = 0
@@ -213,10 +216,10 @@ class CoverageGeometry:
         u = (xy[env_idx, agent_idx] - self.raster_origin) / self.raster_h
         cell = np.floor(u).astype(np.int64)
         q = ((u - cell) * self.subpixel).astype(np.int64)
-        base = cell[:, 0] * self.ny + cell[:, 1]
         k = q[:, 0] * self.subpixel + q[:, 1]
         shared, self._epoch = _overlap_cells(
-            env_idx, base, k, self.stencil, self.stencil_len, self.mask, self._tags, self._owner, self._epoch, marginal
+            env_idx, cell, k, self.stencil_lo, self.stencil_hi, self.stencil_reach, self.ny, self.mask,
+            self._tags, self._owner, self._epoch, marginal,
         )
         cell_area = self.raster_h**2
         excess = np.bincount(env_idx, weights=shared[:, 0], minlength=n_env)
@@ -228,18 +231,31 @@ class CoverageGeometry:
 
 
 @njit(cache=True)
-def _overlap_cells(env, base, k, stencil, stencil_len, mask, tags, owner, epoch, marginal):  # pragma: no cover
+def _overlap_cells(env, cell, k, lo, hi, reach, ny, mask, tags, owner, epoch, marginal):  # pragma: no cover
     """Raster kernel of ``union_area``: per stamp, (its share of the overlap excess, its cells covered twice
     or more, counted only when ``marginal``), in one pass over the stamps' cells.
 
-    ``tags`` [n_cells] holds ``epoch << 16 | count`` per cell and ``owner`` [n_cells] the cell's first stamp;
-    each environment's stamps get a fresh epoch, so a stale tag reads as count 0 and the grid never needs
-    clearing. The excess of a cell covered c ≥ 1 times is c − 1: the first stamp of a cell adds nothing, each
-    later one adds 1. A cell shared by c ≥ 2 stamps counts once for each of them: the first stamp is credited
-    when the second arrives. Returns (out, next epoch).
+    A stamp is agent ``cell`` [M, 2]'s stencil ``k`` [M]: rows ``lo[k, c] .. hi[k, c]`` of column c. ``tags``
+    [n_cells] holds ``epoch << 16 | count`` per cell and ``owner`` [n_cells] the cell's first stamp; each
+    environment's stamps get a fresh epoch, so a stale tag reads as count 0 and the grid never needs clearing.
+    The excess of a cell covered c ≥ 1 times is c − 1: the first stamp of a cell adds nothing, each later one
+    adds 1. A cell shared by c ≥ 2 stamps counts once for each of them: the first stamp is credited when the
+    second arrives. Only a stamp's cells inside the hull of the other stamps' boxes that meet its own box can be
+    shared, so each stamp visits just those (the outputs are the same as visiting all of its cells).
+    Returns (out [M, 2], next epoch).
     """
-    m = len(base)
+    m = len(cell)
     out = np.zeros((m, 2))
+    box = np.empty((m, 4), np.int64)  # x0, x1, y0, y1: the stamp's bounding box in cells (inclusive)
+    for i in range(m):
+        kk = k[i]
+        x0, x1, y0, y1 = reach + 1, -reach - 1, reach + 1, -reach - 1
+        for c in range(2 * reach + 1):
+            if lo[kk, c] <= hi[kk, c]:
+                x0, x1 = min(x0, c - reach), max(x1, c - reach)
+                y0, y1 = min(y0, lo[kk, c]), max(y1, hi[kk, c])
+        box[i, 0], box[i, 1] = cell[i, 0] + x0, cell[i, 0] + x1
+        box[i, 2], box[i, 3] = cell[i, 1] + y0, cell[i, 1] + y1
     start = 0
     while start < m:
         stop = start
@@ -248,21 +264,33 @@ def _overlap_cells(env, base, k, stencil, stencil_len, mask, tags, owner, epoch,
         epoch += 1
         stale = epoch << 16
         for i in range(start, stop):
+            # the hull of the other stamps' boxes that meet this one, clipped to this one
+            cx0, cx1, cy0, cy1 = box[i, 1] + 1, box[i, 0] - 1, box[i, 3] + 1, box[i, 2] - 1
+            for j in range(start, stop):
+                if j != i and box[j, 0] <= box[i, 1] and box[i, 0] <= box[j, 1] \
+                        and box[j, 2] <= box[i, 3] and box[i, 2] <= box[j, 3]:
+                    cx0, cx1 = min(cx0, box[j, 0]), max(cx1, box[j, 1])
+                    cy0, cy1 = min(cy0, box[j, 2]), max(cy1, box[j, 3])
+            cx0, cx1 = max(cx0, box[i, 0]), min(cx1, box[i, 1])
+            cy0, cy1 = max(cy0, box[i, 2]), min(cy1, box[i, 3])
             kk = k[i]
-            for j in range(stencil_len[kk]):
-                c = base[i] + stencil[kk, j]
-                if mask[c]:
-                    t = tags[c]
-                    if t >= stale:
-                        out[i, 0] += 1.0
-                        tags[c] = t + 1
-                        if marginal:
-                            out[i, 1] += 1.0
-                            if t == stale + 1:
-                                out[owner[c], 1] += 1.0
-                    else:
-                        tags[c] = stale + 1
-                        owner[c] = i
+            for x in range(cx0, cx1 + 1):
+                col = x - cell[i, 0] + reach
+                a = max(cell[i, 1] + lo[kk, col], cy0)
+                b = min(cell[i, 1] + hi[kk, col], cy1)
+                for c in range(x * ny + a, x * ny + b + 1):
+                    if mask[c]:
+                        t = tags[c]
+                        if t >= stale:
+                            out[i, 0] += 1.0
+                            tags[c] = t + 1
+                            if marginal:
+                                out[i, 1] += 1.0
+                                if t == stale + 1:
+                                    out[owner[c], 1] += 1.0
+                        else:
+                            tags[c] = stale + 1
+                            owner[c] = i
         start = stop
     return out, epoch
 

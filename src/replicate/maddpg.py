@@ -83,10 +83,9 @@ class BatchedMLP(nn.Module):
             if weight_grads:
                 w.grad = stacked_matmul(inputs[k].mT, d).contiguous()  # ∂L/∂W = xᵀ d
                 b.grad = d.sum(dim=1, keepdim=True)
-            if k == 0:
-                return d
-            d = stacked_matmul(d, w.mT)  # ∂L/∂x = d Wᵀ, then through the ReLU (its output is the saved input)
-            torch.ops.aten.threshold_backward.grad_input(d, inputs[k], 0, grad_input=d)
+            if k > 0:  # ∂L/∂x = d Wᵀ, then through the ReLU (its output is the saved input)
+                d = stacked_matmul(d, w.mT)
+                torch.ops.aten.threshold_backward.grad_input(d, inputs[k], 0, grad_input=d)
         return d
 
 
@@ -150,9 +149,30 @@ class Batch:
 def clip_grad_per_agent(params: list[torch.Tensor], max_norm: float) -> None:
     """openai/maddpg clips each variable's gradient by norm; here each agent's slice of each stacked tensor."""
     grads = [p.grad for p in params]
-    norms = [torch.linalg.vector_norm(g.flatten(1), dim=1).clamp_min_(1e-12) for g in grads]
-    scales = [(max_norm / m).clamp_(max=1.0).view(-1, *([1] * (g.dim() - 1))) for m, g in zip(norms, grads)]
-    torch._foreach_mul_(grads, scales)
+    norms = torch.stack([torch.linalg.vector_norm(g.flatten(1), dim=1) for g in grads])  # [variables, N]
+    scales = (max_norm / norms.clamp_min_(1e-12)).clamp_(max=1.0)
+    torch._foreach_mul_(grads, [s.view(-1, *([1] * (g.dim() - 1))) for s, g in zip(scales, grads)])
+
+
+@torch.no_grad()
+def adam_step(opt: torch.optim.Adam) -> None:
+    """``opt.step()`` for a one-group fused Adam, without the ``Optimizer.step`` wrapper: the same
+    ``_fused_adam_`` kernel on the optimiser's own state, so the result and ``state_dict`` are the same. The
+    wrapper's bookkeeping cost as much as the kernel on ``tuned``'s small tensors (``make bench`` section 2)."""
+    (group,) = opt.param_groups
+    params = group["params"]
+    if not opt.state:
+        opt.step()  # the first step creates the state
+        return
+    state = [opt.state[p] for p in params]
+    steps = [s["step"] for s in state]
+    torch._foreach_add_(steps, 1)
+    beta1, beta2 = group["betas"]
+    torch._fused_adam_(
+        params, [p.grad for p in params], [s["exp_avg"] for s in state], [s["exp_avg_sq"] for s in state], [], steps,
+        lr=group["lr"], beta1=beta1, beta2=beta2, weight_decay=group["weight_decay"], eps=group["eps"],
+        amsgrad=False, maximize=False,
+    )
 
 
 @torch.no_grad()
@@ -193,6 +213,11 @@ class MADDPG:
         own = n_agents * obs_dim + self.agents[:, None] * act_dim + torch.arange(act_dim, device=self.device)
         self.own_action_rows = own  # [N, ad]
 
+    def scale_learning_rates(self, factor: float) -> None:
+        """Set the actor and critic learning rates to ``factor`` × their configured values."""
+        self.actor_opt.param_groups[0]["lr"] = factor * self.cfg.actor_lr
+        self.critic_opt.param_groups[0]["lr"] = factor * self.cfg.critic_lr
+
     @torch.no_grad()
     def policy(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Deterministic actions μ_i(o_i): obs [E, N, obs_dim] → (actions [E, N, act_dim], pre-tanh [E, N, act_dim])."""
@@ -228,7 +253,7 @@ class MADDPG:
         critic_loss = (td**2).mean(dim=1).sum()
         self.critic.backward(saved, (2.0 / bsz) * td.unsqueeze(-1))  # ∂L/∂Q_i = 2(Q_i − y_i)/B
         clip_grad_per_agent(self.params["critic"], cfg.grad_clip)
-        self.critic_opt.step()
+        adam_step(self.critic_opt)
 
         # Actor: ∇θ_i J = E[∇θ_i μ_i(o_i) ∇a_i Q_i(x, a_1, …, μ_i(o_i), …, a_N)] + 1e-3·mean(pre-tanh²)
         pre, actor_saved = self.actor.forward_saving(own_obs)  # [N, B, ad]
@@ -242,7 +267,7 @@ class MADDPG:
         self.actor.backward(actor_saved, d_pre)  # through μ_i only, not into Q's weights
         actor_loss = (-q_pi.squeeze(-1).mean(dim=1) + cfg.actor_reg * (pre**2).mean(dim=(1, 2))).sum()
         clip_grad_per_agent(self.params["actor"], cfg.grad_clip)
-        self.actor_opt.step()
+        adam_step(self.actor_opt)
 
         soft_update(self.params["critic_target"], self.params["critic"], cfg.tau)  # θ' ← τθ + (1 − τ)θ'
         soft_update(self.params["actor_target"], self.params["actor"], cfg.tau)

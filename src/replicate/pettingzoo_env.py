@@ -52,6 +52,8 @@ class CoverageParallelEnv(ParallelEnv):
         world = params.world
         if n_agents is not None:
             world = dataclasses.replace(world, n_agents=int(n_agents))
+        if episode_length is None and isinstance(region, str) and region in params.regions:
+            episode_length = params.regions[region].episode_length  # the region's own T, if it sets one
         if episode_length is not None:
             world = dataclasses.replace(world, episode_length=int(episode_length))
         coverage = params.coverage if radius is None else dataclasses.replace(params.coverage, radius=float(radius))

@@ -28,7 +28,7 @@ def _train_one(job: dict) -> dict:
     torch.set_num_threads(1)
     params = load_params(job["params"])
     region = make_region(job["region"], params.regions[job["region"]], params.world.region_area)
-    rc = run_config(params, job["config"], job["method"])
+    rc = run_config(params, job["config"], job["method"], job["region"])
     out = Path(job["out"])
     done = finished_run(out, run_identity(rc, region, job["episodes"], job["seed"]))
     if done is not None:  # already trained with these exact settings (runs/ persists across repro)
@@ -47,6 +47,13 @@ def ablation_cells(params) -> list[tuple[str, str, str]]:
             for r in ab.regions]
 
 
+def matrix_cells(params, configs, methods, regions, ablation: bool) -> list[tuple[str, str, str]]:
+    """(config, method, region) of every run of the ``train`` stage: config × method × region, then with
+    ``ablation`` the ablation's runs. Each cell is trained once per seed."""
+    cells = [(c, m, r) for c in configs for m in methods for r in regions]
+    return cells + (ablation_cells(params) if ablation else [])
+
+
 def train_matrix(params_path: str, configs, methods, regions, seeds, episodes: int, runs_dir: str, workers: int,
                  ablation: bool = False):
     """Train every config × method × region × seed, ``workers`` processes at a time (one per core), then with
@@ -54,9 +61,7 @@ def train_matrix(params_path: str, configs, methods, regions, seeds, episodes: i
 
     Run again, the matrix skips runs already finished with identical settings and resumes interrupted ones
     from their checkpoints, so adding seeds or a configuration trains only what is new."""
-    cells = [(c, m, r) for c in configs for m in methods for r in regions]
-    if ablation:
-        cells += ablation_cells(load_params(params_path))
+    cells = matrix_cells(load_params(params_path), configs, methods, regions, ablation)
     jobs = [
         {"params": params_path, "config": c, "method": m, "region": r, "seed": s, "episodes": episodes,
          "out": str(Path(runs_dir) / run_name(c, m, r, s))}

@@ -28,7 +28,7 @@ COMPARED = ("team_reward", "coverage")
 def reduced_curve(params: Params, config: str, method: str, out: Path) -> dict[str, np.ndarray]:
     """Train the reduced run of ``config`` × ``method`` into ``out`` and return its curve columns."""
     reg = params.regression
-    rc = run_config(params, config, method)
+    rc = run_config(params, config, method, reg.region)
     maddpg = dataclasses.replace(rc.algo.maddpg, learning_starts=reg.learning_starts, batch_size=reg.batch_size)
     rc = dataclasses.replace(rc, algo=dataclasses.replace(rc.algo, n_envs=reg.n_envs, maddpg=maddpg))
     region = make_region(reg.region, params.regions[reg.region], params.world.region_area)

@@ -170,12 +170,14 @@ def write_report(summary_path: str, timing_path: str, figures: list[str], out: s
         lines.append(f"| {config} | {method.upper()}-MARL | {region} | {len(r['seeds'])} | {fmt(r['coverage'])} | "
                      f"{r['coverage_per_seed']} | {fmt(r['nearest_neighbour'])} | {fmt(r['fraction_inside'])} | "
                      f"{r['convergence_episode']} |")
-    lines += ["", "| baseline | region | coverage | nearest neighbour (m) | fraction inside | ceiling |",
-              "|---|---|---|---|---|---|"]
+    lines += ["", "Baselines run the same physics and start; `steps` is the region's episode length T (every run on "
+              "that region has the same T), or the converged Lloyd layout's longer run.", "",
+              "| baseline | region | steps | coverage | nearest neighbour (m) | fraction inside | ceiling |",
+              "|---|---|---|---|---|---|---|"]
     for key, b in sorted(summary["baselines"].items()):
         name, region = key.split("/")
-        lines.append(f"| {name} | {region} | {b['coverage']:.3f} | {b['nearest_neighbour']:.3f} | "
-                     f"{b['fraction_inside']:.2f} | {b['ceiling']:.3f} |")
+        lines.append(f"| {name} | {region} | {b.get('steps', '—')} | {b['coverage']:.3f} | "
+                     f"{b['nearest_neighbour']:.3f} | {b['fraction_inside']:.2f} | {b['ceiling']:.3f} |")
     lines += ["", "## Time", ""]
     if timing:
         runs = timing["runs"]

@@ -48,6 +48,11 @@ def noise_sigma(cfg, progress: float) -> float:
     return cfg.noise_start + frac * (cfg.noise_end - cfg.noise_start)
 
 
+def lr_factor(cfg, progress: float) -> float:
+    """Learning-rate multiplier: linear from 1 at the first episode to ``lr_end`` at the last."""
+    return 1.0 + progress * (cfg.lr_end - 1.0)
+
+
 def run_identity(rc: RunConfig, region: Region, episodes: int, seed: int) -> dict:
     """What makes two runs the same run: checked on resume, and by the pipeline to skip finished runs."""
     return {
@@ -151,6 +156,8 @@ class Trainer:
         t0 = time.perf_counter() - self.wall
         for batch in range(start_batch, n_batches):
             sigma = noise_sigma(cfg, batch * n_env / self.episodes)
+            if cfg.lr_end != 1.0:
+                self.agent.scale_learning_rates(lr_factor(cfg, batch * n_env / self.episodes))
             obs = self.env.reset()
             returns = np.zeros((n_env, n))
             diag = {"critic_loss": [], "q_abs": []}
