@@ -30,6 +30,7 @@ import torch
 
 from replicate.config import load_params, run_config
 from replicate.env import CoverageEnv
+from replicate.export import OBS_LAYOUT
 from replicate.maddpg import MADDPG, ReplayBuffer, clip_grad_per_agent, soft_update
 from replicate.maddpg_loop import LoopMADDPG
 from replicate.pipeline import matrix_cells
@@ -104,14 +105,9 @@ def machine_gemm_gflops(seconds=1.0) -> float:
 CONFIGS = ("paper", "tuned")
 
 
-def obs_dim(params, config: str) -> int:
-    """The observation size of ``config`` (own position, or own position and velocity: ``env.CoverageEnv``)."""
-    return 2 if params.configs[config].observation == "position" else 4
-
-
 def agent_and_batch(params, config: str) -> tuple[MADDPG, object]:
     """A fresh MADDPG of ``config`` (9 agents, CR's per-agent rewards) and one minibatch of random transitions."""
-    cfg, od = params.configs[config].maddpg, obs_dim(params, config)
+    cfg, od = params.configs[config].maddpg, len(OBS_LAYOUT[params.configs[config].observation])
     rng = np.random.default_rng(0)
     size = 4 * cfg.batch_size
     buf = ReplayBuffer(size, 9, od, 2)
