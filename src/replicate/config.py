@@ -345,21 +345,25 @@ def load_params(path: str | Path = DEFAULT_PARAMS, overrides: Mapping[str, Any] 
     return dataclasses.replace(params, stages=stages)
 
 
+def region_world(params: Params, region: str | None) -> WorldConfig:
+    """The world on ``region``: ``params.world`` with the region's own ``episode_length``, if it sets one (a
+    name that is not in ``params.regions``, or None, keeps the world's)."""
+    spec = params.regions.get(region) if region is not None else None
+    if spec is None or spec.episode_length is None:
+        return params.world
+    return dataclasses.replace(params.world, episode_length=spec.episode_length)
+
+
 def run_config(params: Params, config: str, method: str, region: str | None = None) -> RunConfig:
     """Select one configuration (``paper``/``tuned``/an ablation of it) and method (``sw``/``cr``), on
-    ``region`` (a name of ``params.regions``, whose ``episode_length`` replaces the world's; any other name or
-    None keeps the world's)."""
+    ``region`` (its world from ``region_world``)."""
     configs = params.all_configs()
     if config not in configs:
         raise ConfigError(f"unknown config {config!r}; known: {sorted(configs)}")
     if method not in params.methods:
         raise ConfigError(f"unknown method {method!r}; known: {sorted(params.methods)}")
-    world = params.world
-    spec = params.regions.get(region) if region is not None else None
-    if spec is not None and spec.episode_length is not None:
-        world = dataclasses.replace(world, episode_length=spec.episode_length)
     return RunConfig(
-        world=world,
+        world=region_world(params, region),
         coverage=params.coverage,
         sw_reward=params.sw_reward,
         cr_reward=params.cr_reward,

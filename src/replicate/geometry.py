@@ -192,6 +192,13 @@ class CoverageGeometry:
                     rows = d[inside[col]]
                     assert len(rows) == rows[-1] - rows[0] + 1  # one run per column (K convex)
                     self.stencil_lo[k, col], self.stencil_hi[k, col] = rows[0], rows[-1]
+        # each stencil's bounding box relative to the agent's cell, [subpixel², 4]: dx0, dx1, dy0, dy1 (inclusive)
+        filled = self.stencil_lo <= self.stencil_hi
+        cols = np.where(filled, d, 0)
+        self.stencil_box = np.stack([
+            np.where(filled, cols, w + 1).min(axis=1), np.where(filled, cols, -w - 1).max(axis=1),
+            np.where(filled, self.stencil_lo, w + 1).min(axis=1), np.where(filled, self.stencil_hi, -w - 1).max(axis=1),
+        ], axis=1)
         self._tags = np.zeros(self.nx * self.ny, np.int64)  # scratch grids of the raster kernel
         self._owner = np.zeros(self.nx * self.ny, np.int64)
         self._epoch = 0
@@ -218,7 +225,7 @@ class CoverageGeometry:
         q = ((u - cell) * self.subpixel).astype(np.int64)
         k = q[:, 0] * self.subpixel + q[:, 1]
         shared, self._epoch = _overlap_cells(
-            env_idx, cell, k, self.stencil_lo, self.stencil_hi, self.stencil_reach, self.ny, self.mask,
+            env_idx, cell, k, self.stencil_lo, self.stencil_hi, self.stencil_box, self.stencil_reach, self.ny, self.mask,
             self._tags, self._owner, self._epoch, marginal,
         )
         cell_area = self.raster_h**2
@@ -231,11 +238,12 @@ class CoverageGeometry:
 
 
 @njit(cache=True)
-def _overlap_cells(env, cell, k, lo, hi, reach, ny, mask, tags, owner, epoch, marginal):  # pragma: no cover
+def _overlap_cells(env, cell, k, lo, hi, sbox, reach, ny, mask, tags, owner, epoch, marginal):  # pragma: no cover
     """Raster kernel of ``union_area``: per stamp, (its share of the overlap excess, its cells covered twice
     or more, counted only when ``marginal``), in one pass over the stamps' cells.
 
-    A stamp is agent ``cell`` [M, 2]'s stencil ``k`` [M]: rows ``lo[k, c] .. hi[k, c]`` of column c. ``tags``
+    A stamp is agent ``cell`` [M, 2]'s stencil ``k`` [M]: rows ``lo[k, c] .. hi[k, c]`` of column c, inside the
+    box ``sbox[k]`` (dx0, dx1, dy0, dy1) around the cell. ``tags``
     [n_cells] holds ``epoch << 16 | count`` per cell and ``owner`` [n_cells] the cell's first stamp; each
     environment's stamps get a fresh epoch, so a stale tag reads as count 0 and the grid never needs clearing.
     The excess of a cell covered c ≥ 1 times is c − 1: the first stamp of a cell adds nothing, each later one
@@ -249,13 +257,8 @@ def _overlap_cells(env, cell, k, lo, hi, reach, ny, mask, tags, owner, epoch, ma
     box = np.empty((m, 4), np.int64)  # x0, x1, y0, y1: the stamp's bounding box in cells (inclusive)
     for i in range(m):
         kk = k[i]
-        x0, x1, y0, y1 = reach + 1, -reach - 1, reach + 1, -reach - 1
-        for c in range(2 * reach + 1):
-            if lo[kk, c] <= hi[kk, c]:
-                x0, x1 = min(x0, c - reach), max(x1, c - reach)
-                y0, y1 = min(y0, lo[kk, c]), max(y1, hi[kk, c])
-        box[i, 0], box[i, 1] = cell[i, 0] + x0, cell[i, 0] + x1
-        box[i, 2], box[i, 3] = cell[i, 1] + y0, cell[i, 1] + y1
+        box[i, 0], box[i, 1] = cell[i, 0] + sbox[kk, 0], cell[i, 0] + sbox[kk, 1]
+        box[i, 2], box[i, 3] = cell[i, 1] + sbox[kk, 2], cell[i, 1] + sbox[kk, 3]
     start = 0
     while start < m:
         stop = start

@@ -19,7 +19,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from .config import Params, load_params
+from .config import Params, load_params, region_world
 from .env import CoverageEnv
 from .regions import Region, make_region
 
@@ -49,11 +49,9 @@ class CoverageParallelEnv(ParallelEnv):
         params: Params | None = None,
     ):
         params = params or load_params(PACKAGE_PARAMS)
-        world = params.world
+        world = region_world(params, region if isinstance(region, str) else None)
         if n_agents is not None:
             world = dataclasses.replace(world, n_agents=int(n_agents))
-        if episode_length is None and isinstance(region, str) and region in params.regions:
-            episode_length = params.regions[region].episode_length  # the region's own T, if it sets one
         if episode_length is not None:
             world = dataclasses.replace(world, episode_length=int(episode_length))
         coverage = params.coverage if radius is None else dataclasses.replace(params.coverage, radius=float(radius))

@@ -156,8 +156,7 @@ class Trainer:
         t0 = time.perf_counter() - self.wall
         for batch in range(start_batch, n_batches):
             sigma = noise_sigma(cfg, batch * n_env / self.episodes)
-            if cfg.lr_end != 1.0:
-                self.agent.scale_learning_rates(lr_factor(cfg, batch * n_env / self.episodes))
+            self.agent.scale_learning_rates(lr_factor(cfg, batch * n_env / self.episodes))
             obs = self.env.reset()
             returns = np.zeros((n_env, n))
             diag = {"critic_loss": [], "q_abs": []}
