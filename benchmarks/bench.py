@@ -112,7 +112,8 @@ def agent_and_batch(params, config: str) -> tuple[MADDPG, object]:
     size = 4 * cfg.batch_size
     buf = ReplayBuffer(size, 9, od, 2)
     buf.add(rng.normal(size=(size, 9, od)).astype(np.float32), rng.uniform(-1, 1, (size, 9, 2)).astype(np.float32),
-            rng.normal(size=(size, 9)).astype(np.float32), rng.normal(size=(size, 9, od)).astype(np.float32))
+            rng.normal(size=(size, 9)).astype(np.float32), rng.normal(size=(size, 9, od)).astype(np.float32),
+            cfg.gamma)
     return MADDPG(9, od, 2, cfg, "individual", seed=0), buf.sample(rng, cfg.batch_size)
 
 

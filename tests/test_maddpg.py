@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from replicate.maddpg import MADDPG, BatchedMLP, ReplayBuffer, adam_step, soft_update
+from replicate.maddpg import MADDPG, BatchedMLP, NStepWriter, ReplayBuffer, adam_step, soft_update
 from replicate.maddpg_loop import LoopMADDPG
 
 
@@ -21,6 +21,7 @@ def filled_buffer(n, od, rng, size=2000):
             rng.uniform(-1, 1, (100, n, 2)).astype(np.float32),
             rng.normal(size=(100, n)).astype(np.float32),
             rng.normal(size=(100, n, od)).astype(np.float32),
+            0.95,
         )
     return buf
 
@@ -158,10 +159,51 @@ def test_replay_buffer_wraps_and_round_trips():
     buf = ReplayBuffer(5, 2, 2, 2)
     for k in range(3):
         buf.add(np.full((2, 2, 2), k, np.float32), np.zeros((2, 2, 2), np.float32), np.full((2, 2), k, np.float32),
-                np.zeros((2, 2, 2), np.float32))
+                np.zeros((2, 2, 2), np.float32), 0.9**k)
     assert buf.size == 5 and buf.ptr == 1
     assert buf.rew[:, 0].tolist() == [2, 0, 1, 1, 2]  # the third batch wrapped onto slot 0
     other = ReplayBuffer(5, 2, 2, 2)
     other.load_state_dict(buf.state_dict())
     np.testing.assert_array_equal(other.rew, buf.rew)
+    np.testing.assert_array_equal(other.disc, buf.disc)
     assert (other.ptr, other.size) == (buf.ptr, buf.size)
+
+
+def test_n_step_writer_sums_discounted_rewards_and_closes_the_episode():
+    """Hand-computed 3-step returns over a 5-step episode of 2 environments: steps 0-2 hold full 3-step
+    transitions (disc γ³); the time limit writes steps 3 and 4 with the 2 and 1 rewards left (γ², γ)."""
+    gamma, n_env, n_agents, steps = 0.5, 2, 3, 5
+    buf = ReplayBuffer(20, n_agents, 2, 2)
+    writer = NStepWriter(buf, 3, gamma)
+    rew = [np.full((n_env, n_agents), 10.0**t) for t in range(steps)]  # r_t = 10^t, every agent
+    obs = [np.full((n_env, n_agents, 2), float(t), np.float32) for t in range(steps + 1)]
+    for t in range(steps):
+        writer.add(obs[t], np.zeros((n_env, n_agents, 2), np.float32), rew[t], obs[t + 1], last=t == steps - 1)
+    assert buf.size == n_env * steps and not writer.open
+    start = buf.obs[: buf.size, 0, 0]  # the step each transition starts at
+    for t in range(steps):
+        m = min(3, steps - t)
+        rows = np.nonzero(start == t)[0]
+        assert len(rows) == n_env
+        expected = sum(gamma**k * 10.0 ** (t + k) for k in range(m))
+        np.testing.assert_allclose(buf.rew[rows], expected, rtol=1e-6)
+        np.testing.assert_allclose(buf.disc[rows], gamma**m, rtol=1e-6)
+        np.testing.assert_array_equal(buf.next_obs[rows, 0, 0], t + m)
+
+
+def test_one_step_writer_is_the_plain_buffer():
+    """n = 1 writes each step as it comes, with disc γ: the paper's transitions, in the same order."""
+    rng = np.random.default_rng(3)
+    a, b = ReplayBuffer(10, 2, 2, 2), ReplayBuffer(10, 2, 2, 2)
+    writer = NStepWriter(b, 1, 0.95)
+    for t in range(4):
+        step = [rng.normal(size=s).astype(np.float32) for s in ((2, 2, 2), (2, 2, 2), (2, 2), (2, 2, 2))]
+        a.add(*step, 0.95)
+        writer.add(*step, last=t == 3)
+    for name in ("obs", "act", "rew", "next_obs", "disc"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
+def test_n_step_below_one_is_refused():
+    with pytest.raises(ValueError, match="n >= 1"):
+        NStepWriter(ReplayBuffer(4, 2, 2, 2), 0, 0.9)

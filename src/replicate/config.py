@@ -87,6 +87,7 @@ class MADDPGConfig:
     noise_end: float
     noise_decay: float
     lr_end: float = 1.0  # learning rates fall linearly to this fraction of actor_lr/critic_lr by the last episode
+    n_step: int = 1  # transitions hold n-step returns (1: the paper's one-step TD target)
 
 
 @dataclass(frozen=True)
@@ -198,6 +199,9 @@ class Params:
             raise ConfigError(f"ablation.regions: unknown region(s) {unknown}")
         for change in ab.changes:
             ablation_config(self, change)  # every key must exist
+        for name, algo in self.configs.items():
+            if algo.maddpg.n_step < 1:
+                raise ConfigError(f"configs.{name}.maddpg.n_step must be at least 1, got {algo.maddpg.n_step}")
         for name, spec in self.regions.items():
             if spec.episode_length is not None and spec.episode_length < 1:
                 raise ConfigError(f"regions.{name}.episode_length must be at least 1, got {spec.episode_length}")

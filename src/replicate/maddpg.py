@@ -91,7 +91,8 @@ class BatchedMLP(nn.Module):
 
 class ReplayBuffer:
     """Preallocated ring buffer of joint transitions: obs/next_obs [C, N, obs_dim], act [C, N, act_dim],
-    rew [C, N] (float32)."""
+    rew [C, N], and the discount of the bootstrap at next_obs, disc [C] (γ for a one-step transition, γᵐ for an
+    m-step one; float32)."""
 
     def __init__(self, capacity: int, n_agents: int, obs_dim: int, act_dim: int):
         self.capacity = capacity
@@ -99,13 +100,16 @@ class ReplayBuffer:
         self.act = np.zeros((capacity, n_agents, act_dim), np.float32)
         self.rew = np.zeros((capacity, n_agents), np.float32)
         self.next_obs = np.zeros((capacity, n_agents, obs_dim), np.float32)
+        self.disc = np.zeros(capacity, np.float32)
         self.ptr = 0
         self.size = 0
 
-    def add(self, obs: np.ndarray, act: np.ndarray, rew: np.ndarray, next_obs: np.ndarray) -> None:
-        """Add a batch of E transitions (leading axis E). No transition is terminal: episodes end by time limit."""
+    def add(self, obs: np.ndarray, act: np.ndarray, rew: np.ndarray, next_obs: np.ndarray, discount: float) -> None:
+        """Add a batch of E transitions (leading axis E) that bootstrap at next_obs with ``discount``. No transition
+        is terminal: episodes end by time limit."""
         idx = (self.ptr + np.arange(len(obs))) % self.capacity
         self.obs[idx], self.act[idx], self.rew[idx], self.next_obs[idx] = obs, act, rew, next_obs
+        self.disc[idx] = discount
         self.ptr = int((self.ptr + len(obs)) % self.capacity)
         self.size = min(self.size + len(obs), self.capacity)
 
@@ -114,7 +118,7 @@ class ReplayBuffer:
         docs/DEVIATIONS.md). → tensors with leading [B]."""
         idx = rng.integers(0, self.size, size=batch)
         t = torch.from_numpy
-        return Batch(t(self.obs[idx]), t(self.act[idx]), t(self.rew[idx]), t(self.next_obs[idx]))
+        return Batch(t(self.obs[idx]), t(self.act[idx]), t(self.rew[idx]), t(self.next_obs[idx]), t(self.disc[idx]))
 
     def state_dict(self) -> dict:
         n = self.size
@@ -123,6 +127,7 @@ class ReplayBuffer:
             "act": torch.from_numpy(self.act[:n].copy()),
             "rew": torch.from_numpy(self.rew[:n].copy()),
             "next_obs": torch.from_numpy(self.next_obs[:n].copy()),
+            "disc": torch.from_numpy(self.disc[:n].copy()),
             "ptr": self.ptr,
             "size": self.size,
         }
@@ -133,17 +138,49 @@ class ReplayBuffer:
             raise ValueError("replay buffer state does not fit this buffer")
         self.obs[:n], self.act[:n] = state["obs"].numpy(), state["act"].numpy()
         self.rew[:n], self.next_obs[:n] = state["rew"].numpy(), state["next_obs"].numpy()
+        self.disc[:n] = state["disc"].numpy()
         self.ptr, self.size = int(state["ptr"]), n
+
+
+class NStepWriter:
+    """Writes the transitions of E environments that step in lockstep into a ``ReplayBuffer`` as n-step returns
+    (Sutton & Barto §7.1; n = 1 is the paper's one-step transition).
+
+    A transition from step t is written once its n rewards are known: r = Σ_{k<n} γᵏ r_{t+k}, next_obs = o_{t+n},
+    disc = γⁿ. The episode's last step (its time limit) writes the ones still open, each with the m < n rewards
+    left, bootstrapping at the last observation with γᵐ. Arrays are [E, N, ...] as in ``ReplayBuffer.add``.
+    """
+
+    def __init__(self, buffer: ReplayBuffer, n: int, gamma: float):
+        if n < 1:
+            raise ValueError(f"n-step returns need n >= 1, got {n}")
+        self.buffer, self.n, self.gamma = buffer, n, gamma
+        self.open: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (obs, act, rew) of unwritten steps
+
+    def add(self, obs: np.ndarray, act: np.ndarray, rew: np.ndarray, next_obs: np.ndarray, last: bool) -> None:
+        self.open.append((obs, act, rew))
+        if len(self.open) == self.n:
+            self._write(next_obs)
+        while last and self.open:
+            self._write(next_obs)
+
+    def _write(self, next_obs: np.ndarray) -> None:
+        obs, act, ret = self.open[0]
+        for k in range(1, len(self.open)):
+            ret = ret + self.gamma**k * self.open[k][2]
+        self.buffer.add(obs, act, ret, next_obs, self.gamma ** len(self.open))
+        self.open.pop(0)
 
 
 @dataclass
 class Batch:
-    """Sampled joint transitions: obs/next_obs [B, N, obs_dim], act [B, N, act_dim], rew [B, N]."""
+    """Sampled joint transitions: obs/next_obs [B, N, obs_dim], act [B, N, act_dim], rew [B, N], disc [B]."""
 
     obs: torch.Tensor
     act: torch.Tensor
     rew: torch.Tensor
     next_obs: torch.Tensor
+    disc: torch.Tensor
 
 
 def clip_grad_per_agent(params: list[torch.Tensor], max_norm: float) -> None:
@@ -238,16 +275,18 @@ class MADDPG:
         The gradients are written out (``BatchedMLP.backward``); ``tests/test_maddpg.py`` checks them against
         the per-agent autograd loop of ``maddpg_loop``."""
         cfg, n = self.cfg, self.n
-        obs, act, rew, next_obs = (t.to(self.device) for t in (batch.obs, batch.act, batch.rew, batch.next_obs))
+        obs, act, rew, next_obs, disc = (
+            t.to(self.device) for t in (batch.obs, batch.act, batch.rew, batch.next_obs, batch.disc))
         bsz = obs.shape[0]
         own_obs = obs.transpose(0, 1).contiguous()  # [N, B, od]: o_i for actor i
         r = rew.T if self.reward_mode == "individual" else rew.mean(dim=1).expand(n, bsz)  # [N, B]
         x = obs.reshape(1, bsz, -1).expand(n, bsz, n * self.obs_dim)  # every critic sees all observations
 
-        # Critic: y_i = r_i + γ Q'_i(x', μ'_1(o'_1), …, μ'_N(o'_N))   (paper eq. y; no terminal states)
+        # Critic: y_i = r_i + γ Q'_i(x', μ'_1(o'_1), …, μ'_N(o'_N))   (paper eq. y; no terminal states; an m-step
+        # transition holds r_i = Σ_k γᵏ r_i,t+k and disc = γᵐ, Sutton & Barto §7.1)
         next_act = torch.tanh(self.actor_target(next_obs.transpose(0, 1)))  # [N, B, ad]
         x_next = torch.cat([next_obs.reshape(bsz, -1), next_act.transpose(0, 1).reshape(bsz, -1)], dim=-1)
-        y = r + cfg.gamma * self.critic_target(x_next.expand(n, bsz, -1)).squeeze(-1)
+        y = r + disc * self.critic_target(x_next.expand(n, bsz, -1)).squeeze(-1)
         q, saved = self.critic.forward_saving(torch.cat([x, act.reshape(1, bsz, -1).expand(n, bsz, -1)], dim=-1))
         td = q.squeeze(-1) - y  # [N, B]
         critic_loss = (td**2).mean(dim=1).sum()

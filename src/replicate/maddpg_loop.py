@@ -49,7 +49,7 @@ class LoopMADDPG:
         for i in range(n):
             r = rew[:, i] if self.reward_mode == "individual" else rew.mean(dim=1)
             with torch.no_grad():
-                y = r + cfg.gamma * self.critic_targets[i](x_next).squeeze(-1)
+                y = r + batch.disc * self.critic_targets[i](x_next).squeeze(-1)
             loss = ((self.critics[i](x).squeeze(-1) - y) ** 2).mean()
             self.critic_opts[i].zero_grad()
             loss.backward()

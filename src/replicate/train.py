@@ -25,7 +25,7 @@ from .artifacts import CHECKPOINT_FORMAT, CheckpointError
 from .config import ConfigError, RunConfig, to_dict
 from .env import CoverageEnv
 from .geometry import region_key
-from .maddpg import MADDPG, ReplayBuffer
+from .maddpg import MADDPG, NStepWriter, ReplayBuffer
 from .regions import Region
 
 DIAGNOSTICS = ("critic_loss", "q_abs", "saturated", "noise")
@@ -134,6 +134,7 @@ class Trainer:
         self.agent = MADDPG(n, od, 2, algo.maddpg, self.rc.method.reward_mode, seed=self.seed)
         capacity = min(algo.maddpg.buffer_size, self.episodes * self.rc.world.episode_length)
         self.buffer = ReplayBuffer(capacity, n, od, 2)
+        self.writer = NStepWriter(self.buffer, algo.maddpg.n_step, algo.maddpg.gamma)
         self.transitions = 0
         self.pending_updates = 0.0
         self.wall = 0.0
@@ -161,11 +162,11 @@ class Trainer:
             returns = np.zeros((n_env, n))
             diag = {"critic_loss": [], "q_abs": []}
             saturated = 0.0
-            for _ in range(horizon):
+            for t in range(horizon):
                 action, mu = self.agent.act(obs, sigma, self.noise_rng)
                 saturated += float((np.abs(mu) > 0.99).mean())
                 step = self.env.step(action)
-                self.buffer.add(obs, action, step.reward * algo.reward_scale, step.obs)
+                self.writer.add(obs, action, step.reward * algo.reward_scale, step.obs, last=t == horizon - 1)
                 returns += step.reward
                 obs = step.obs
                 self.transitions += n_env
