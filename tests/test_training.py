@@ -64,11 +64,12 @@ def test_short_cr_run_learns(params, regions, tmp_path):
 
     Measured here with the current `tuned` (1,000 episodes, learning from 2,560 transitions, the kept actors,
     100 evaluation episodes), return per agent untrained → trained and coverage untrained → trained: seed 0
-    1,494 → 2,114, 0.15 → 0.33; seed 1 1,513 → 1,596, 0.19 → 0.17; seed 2 1,453 → 2,297, 0.19 → 0.31; random
-    actions cover 0.22. 1,000 episodes are early for this config (~1,400 updates of batch 128, with the learning
-    rate already falling to 0.1 × by episode 1,000), and seed 1 has not got going by then, so the test uses
-    seed 0, with bounds inside its numbers: return × 1.2 (measured × 1.41) and coverage above random + 0.05
-    (measured + 0.11). Untrained actors can already cover 0.15-0.19, because the geofence stops each agent's
+    1,494 → 2,736, 0.15 → 0.35; seed 1 1,513 → 3,254, 0.19 → 0.51; seed 2 1,453 → 2,748, 0.19 → 0.35; random
+    actions cover 0.22. The test uses seed 0 (the smallest return gain; seed 2's coverage gain, + 0.128, is the
+    smallest), with bounds inside its numbers: return × 1.5 (measured × 1.83) and coverage above random + 0.1
+    (measured + 0.135). Session 7's one-step `tuned` measured × 1.41 and
+    + 0.11 on seed 0 and had not got going on seed 1 by episode 1,000 (× 1.05); the 5-step targets of session 8
+    learn faster early. Untrained actors can already cover 0.15-0.19, because the geofence stops each agent's
     constant random heading at a different wall.
     """
     seed = 0
@@ -87,8 +88,8 @@ def test_short_cr_run_learns(params, regions, tmp_path):
         result[name] = (float(out["returns"].mean()), cov)
     random = evaluate.evaluate_baseline("random", p, square, "tuned")["coverage"]["mean"]
     print(f"return/coverage: untrained {result['untrained']}, trained {result['trained']}; random coverage {random}")
-    assert result["trained"][0] > 1.2 * result["untrained"][0]
-    assert result["trained"][1] > random + 0.05
+    assert result["trained"][0] > 1.5 * result["untrained"][0]
+    assert result["trained"][1] > random + 0.1
 
 
 def small_trainer(params, region, out, seed=0, episodes=20, **algo_changes):
@@ -118,6 +119,19 @@ def test_learning_rates_fall_linearly_to_lr_end(params, regions, tmp_path):
     last = lr_factor(cfg, 30 / 40)  # the last batch of 10 episodes starts at 75 % of training
     assert tr.agent.actor_opt.param_groups[0]["lr"] == pytest.approx(cfg.actor_lr * last)
     assert tr.agent.critic_opt.param_groups[0]["lr"] == pytest.approx(cfg.critic_lr * last)
+
+
+def test_training_writes_n_step_transitions(params, regions, tmp_path):
+    """`tuned` trains on 5-step transitions: per episode of T steps, T − 4 bootstrap with γ⁵ and the last four with
+    the γᵐ of the rewards left (m = 4, 3, 2, 1)."""
+    tr = small_trainer(params, regions["square"], tmp_path / "run", episodes=10)
+    cfg, horizon, n_env = tr.rc.algo.maddpg, tr.rc.world.episode_length, tr.rc.algo.n_envs
+    assert cfg.n_step == 5
+    tr.run()
+    disc = tr.buffer.disc[: tr.buffer.size]
+    assert len(disc) == n_env * horizon
+    for m, count in ((5, horizon - 4), (4, 1), (3, 1), (2, 1), (1, 1)):
+        assert np.isclose(disc, np.float32(cfg.gamma**m)).sum() == n_env * count, m
 
 
 def test_gzip_curve_is_deterministic_and_reads_back(tmp_path):
