@@ -194,10 +194,10 @@ class CoverageGeometry:
                     self.stencil_lo[k, col], self.stencil_hi[k, col] = rows[0], rows[-1]
         # each stencil's bounding box relative to the agent's cell, [subpixel², 4]: dx0, dx1, dy0, dy1 (inclusive)
         filled = self.stencil_lo <= self.stencil_hi
-        cols = np.where(filled, d, 0)
+        lo, hi = self.stencil_lo, self.stencil_hi
         self.stencil_box = np.stack([
-            np.where(filled, cols, w + 1).min(axis=1), np.where(filled, cols, -w - 1).max(axis=1),
-            np.where(filled, self.stencil_lo, w + 1).min(axis=1), np.where(filled, self.stencil_hi, -w - 1).max(axis=1),
+            np.where(filled, d, w + 1).min(axis=1), np.where(filled, d, -w - 1).max(axis=1),
+            np.where(filled, lo, w + 1).min(axis=1), np.where(filled, hi, -w - 1).max(axis=1),
         ], axis=1)
         self._tags = np.zeros(self.nx * self.ny, np.int64)  # scratch grids of the raster kernel
         self._owner = np.zeros(self.nx * self.ny, np.int64)
@@ -225,8 +225,8 @@ class CoverageGeometry:
         q = ((u - cell) * self.subpixel).astype(np.int64)
         k = q[:, 0] * self.subpixel + q[:, 1]
         shared, self._epoch = _overlap_cells(
-            env_idx, cell, k, self.stencil_lo, self.stencil_hi, self.stencil_box, self.stencil_reach, self.ny, self.mask,
-            self._tags, self._owner, self._epoch, marginal,
+            env_idx, cell, k, self.stencil_lo, self.stencil_hi, self.stencil_box, self.stencil_reach, self.ny,
+            self.mask, self._tags, self._owner, self._epoch, marginal,
         )
         cell_area = self.raster_h**2
         excess = np.bincount(env_idx, weights=shared[:, 0], minlength=n_env)
