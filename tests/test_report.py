@@ -22,7 +22,8 @@ def group(per_seed, nn=0.8, conv=(5000, 5000, 5000)):
 
 
 def summary(params):
-    base = {f"{b}/{r}": {"coverage": c, "nearest_neighbour": 0.7, "fraction_inside": 1.0, "ceiling": 0.78}
+    base = {f"{b}/{r}": {"coverage": c, "nearest_neighbour": 0.7, "fraction_inside": 1.0, "ceiling": 0.78,
+                        "steps": 50}
             for r in ("square", "rectangle", "bedok") for b, c in (("naive", 0.5), ("lloyd", 0.7))}
     runs = {
         "tuned/cr/square": group([0.72, 0.74, 0.75]),
@@ -62,4 +63,5 @@ def test_claims_and_report_text(params, tmp_path):
     (tmp_path / "summary.json").write_text(json.dumps(s))
     text = write_report(str(tmp_path / "summary.json"), str(tmp_path / "none.json"), [], str(tmp_path / "R.md"), {})
     assert "## Ablation of `tuned`" in text and "| `update_schedule` |" in text
+    assert "| naive | square | 50 | 0.500 |" in text  # the baseline table gives each baseline's T
     assert (tmp_path / "R.md").read_text() == text

@@ -224,9 +224,10 @@ class CoverageGeometry:
         cell = np.floor(u).astype(np.int64)
         q = ((u - cell) * self.subpixel).astype(np.int64)
         k = q[:, 0] * self.subpixel + q[:, 1]
+        box = self.stencil_box[k] + cell[:, [0, 0, 1, 1]]  # each stamp's bounding box in cells, [M, 4]
         shared, self._epoch = _overlap_cells(
-            env_idx, cell, k, self.stencil_lo, self.stencil_hi, self.stencil_box, self.stencil_reach, self.ny,
-            self.mask, self._tags, self._owner, self._epoch, marginal,
+            env_idx, cell, k, box, self.stencil_lo, self.stencil_hi, self.stencil_reach, self.ny, self.mask,
+            self._tags, self._owner, self._epoch, marginal,
         )
         cell_area = self.raster_h**2
         excess = np.bincount(env_idx, weights=shared[:, 0], minlength=n_env)
@@ -238,14 +239,14 @@ class CoverageGeometry:
 
 
 @njit(cache=True)
-def _overlap_cells(env, cell, k, lo, hi, sbox, reach, ny, mask, tags, owner, epoch, marginal):  # pragma: no cover
+def _overlap_cells(env, cell, k, box, lo, hi, reach, ny, mask, tags, owner, epoch, marginal):  # pragma: no cover
     """Raster kernel of ``union_area``: per stamp, (its share of the overlap excess, its cells covered twice
     or more, counted only when ``marginal``), in one pass over the stamps' cells.
 
-    A stamp is agent ``cell`` [M, 2]'s stencil ``k`` [M]: rows ``lo[k, c] .. hi[k, c]`` of column c, inside the
-    box ``sbox[k]`` (dx0, dx1, dy0, dy1) around the cell. ``tags``
-    [n_cells] holds ``epoch << 16 | count`` per cell and ``owner`` [n_cells] the cell's first stamp; each
-    environment's stamps get a fresh epoch, so a stale tag reads as count 0 and the grid never needs clearing.
+    A stamp is agent ``cell`` [M, 2]'s stencil ``k`` [M]: rows ``lo[k, c] .. hi[k, c]`` of column c, inside its
+    bounding box ``box`` [M, 4] (x0, x1, y0, y1, inclusive, in cells). ``tags`` [n_cells] holds
+    ``epoch << 16 | count`` per cell and ``owner`` [n_cells] the cell's first stamp; each environment's stamps get
+    a fresh epoch, so a stale tag reads as count 0 and the grid never needs clearing.
     The excess of a cell covered c ≥ 1 times is c − 1: the first stamp of a cell adds nothing, each later one
     adds 1. A cell shared by c ≥ 2 stamps counts once for each of them: the first stamp is credited when the
     second arrives. Only a stamp's cells inside the hull of the other stamps' boxes that meet its own box can be
@@ -254,11 +255,6 @@ def _overlap_cells(env, cell, k, lo, hi, sbox, reach, ny, mask, tags, owner, epo
     """
     m = len(cell)
     out = np.zeros((m, 2))
-    box = np.empty((m, 4), np.int64)  # x0, x1, y0, y1: the stamp's bounding box in cells (inclusive)
-    for i in range(m):
-        kk = k[i]
-        box[i, 0], box[i, 1] = cell[i, 0] + sbox[kk, 0], cell[i, 0] + sbox[kk, 1]
-        box[i, 2], box[i, 3] = cell[i, 1] + sbox[kk, 2], cell[i, 1] + sbox[kk, 3]
     start = 0
     while start < m:
         stop = start

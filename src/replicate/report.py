@@ -176,7 +176,7 @@ def write_report(summary_path: str, timing_path: str, figures: list[str], out: s
               "|---|---|---|---|---|---|---|"]
     for key, b in sorted(summary["baselines"].items()):
         name, region = key.split("/")
-        lines.append(f"| {name} | {region} | {b.get('steps', '—')} | {b['coverage']:.3f} | "
+        lines.append(f"| {name} | {region} | {b['steps']} | {b['coverage']:.3f} | "
                      f"{b['nearest_neighbour']:.3f} | {b['fraction_inside']:.2f} | {b['ceiling']:.3f} |")
     lines += ["", "## Time", ""]
     if timing:
