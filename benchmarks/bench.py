@@ -5,8 +5,10 @@
    copies, optimiser), so run times measured on different machines and the room left for speed-ups can be read.
 1. Time per 1,000 episodes of the paper and tuned configurations (CR-MARL and SW-MARL, square), split into
    environment + geometry + acting (+ validation) and MADDPG updates, and the projected wall time of a full
-   10,000-episode run (issue 4's budget for `tuned`: 180 s on one core). From these, the projected `train` stage
-   of the pipeline (every run of params.yaml's matrix and ablation, two at a time), and the same with every
+   10,000-episode run (issue 4's budget for `tuned`: 180 s on one core), for a run alone and per run of the seeds
+   stacked in one process (as the pipeline trains them), with the ratio. From the stacked figures, the projected
+   `train` stage of the pipeline (every run of params.yaml's matrix and ablation, two processes at a time), and
+   the same with every
    update at its matmul floor: how far issue 3's 45 minutes for the whole `dvc repro` is on this machine.
 2. One update of all 9 agents, per configuration: the batched MADDPG (hand-written gradients) against the same
    batched update through autograd (as in sessions 1-5) and the per-agent loop (``maddpg_loop``), as ratios.
@@ -49,14 +51,16 @@ def best_of(fn, repeats=5):
     return min(times)
 
 
-def training_split(params, square, config: str, method: str, episodes: int):
-    """(env seconds per 1,000 episodes, seconds per update, projected 10k wall) from a short real run."""
+def training_split(params, square, config: str, method: str, episodes: int, runs: int = 1):
+    """(env seconds per 1,000 episodes, seconds per update, projected 10k wall), each per run, from a short real
+    training of ``runs`` seeds stacked in one process (``train.Trainer``)."""
     rc = run_config(params, config, method)
     with tempfile.TemporaryDirectory() as tmp:
-        tr = Trainer(rc, square, episodes, 0, Path(tmp) / "run", checkpoint_every=episodes, progress=False)
+        tr = Trainer(rc, square, episodes, list(range(runs)), [Path(tmp) / f"run{k}" for k in range(runs)],
+                     checkpoint_every=episodes, progress=False)
         tr.run()
-    env_s = (tr.wall - tr.update_seconds) / episodes * 1000
-    per_update = tr.update_seconds / max(tr.updates, 1)
+    env_s = (tr.wall - tr.update_seconds) / episodes * 1000 / runs
+    per_update = tr.update_seconds / max(tr.updates, 1) / runs
     cfg = rc.algo.maddpg
     total = params.train.episodes * rc.world.episode_length
     full_updates = (total - cfg.learning_starts) / cfg.update_every
@@ -67,7 +71,8 @@ def training_split(params, square, config: str, method: str, episodes: int):
 
 def train_stage_projection(params, splits, floors, workers: int = 2) -> tuple[int, float, float]:
     """(runs, projected seconds, seconds with updates at the matmul floor) of the pipeline's ``train`` stage:
-    every cell of ``pipeline`` in params.yaml plus the ablation, × seeds, ``workers`` runs at a time. A run costs
+    every cell of ``pipeline`` in params.yaml plus the ablation, × seeds, ``workers`` processes at a time, each
+    training a cell's seeds as one stack (``splits`` are measured per run of such a stack). A run costs
     the square's environment time of its config family and method (``splits``), scaled by its region's episode
     length, plus its update count times the measured update of the same batch size (``paper``'s for batch 1024,
     ``tuned``'s for 128)."""
@@ -271,22 +276,28 @@ def main(argv=None) -> int:
         print(f"{config}: where an update's time goes (every aten call timed, so the total runs slower): " + "; ".join(
             f"{k} {ms:.2f} ms" + (f" at {gf:.1f} GFLOPS" if gf == gf else "") for k, (ms, gf) in sorted(parts.items())))
 
-    print("== 1. training time, square (one thread) ==")
+    seeds = len(params.train.seeds)
+    print(f"== 1. training time per run, square (one thread): a run alone, and {seeds} seeds stacked in one "
+          "process as the pipeline trains them ==")
     splits = {}
     for config, target in (("paper", 90), ("tuned", 180)):
         for method in ("cr", "sw"):
-            env_s, per_update, upd_1000, full = training_split(params, square, config, method, args.episodes)
-            splits[(config, method)] = (env_s, per_update)
-            print(f"{config} {method.upper()}-MARL: per 1,000 episodes: environment+geometry+acting {env_s:6.1f} s, "
-                  f"updates {upd_1000:6.1f} s ({per_update * 1e3:.1f} ms per update of 9 agents); "
-                  f"projected 10,000-episode run {full:6.1f} s (target {target} s); "
-                  f"the matmul floor is {floors[config] / per_update:.0%} of an update's time")
+            alone = training_split(params, square, config, method, args.episodes)
+            stacked = training_split(params, square, config, method, args.episodes, runs=seeds)
+            splits[(config, method)] = stacked[:2]
+            for label, (env_s, per_update, upd_1000, full) in (("alone", alone), (f"{seeds} stacked", stacked)):
+                print(f"{config} {method.upper()}-MARL, {label:9s}: per 1,000 episodes: environment+geometry+acting "
+                      f"{env_s:6.1f} s, updates {upd_1000:6.1f} s ({per_update * 1e3:.1f} ms per update of 9 "
+                      f"agents); projected 10,000-episode run {full:6.1f} s (target {target} s); the matmul floor "
+                      f"is {floors[config] / per_update:.0%} of an update's time")
+            print(f"{config} {method.upper()}-MARL: stacking {seeds} seeds takes {stacked[3] / alone[3]:.2f}x the "
+                  "time per run of a run alone")
 
     runs, projected, at_floor = train_stage_projection(params, splits, floors)
-    print(f"pipeline `train` stage, {runs} runs two at a time: projected {projected / 60:.0f} min at these speeds "
-          f"(two runs at a time share the memory bus, so the stage runs a little longer: README has the measured "
-          f"time); {at_floor / 60:.0f} min if every update ran at its matmul floor. Issue 3 asks for 45 min for "
-          f"the whole `dvc repro`, of which `evaluate`, `figures` and `report` take a few minutes")
+    print(f"pipeline `train` stage, {runs} runs, two processes at a time: projected {projected / 60:.0f} min at "
+          f"these speeds (two processes share the memory bus, so the stage runs a little longer: README has the "
+          f"measured time); {at_floor / 60:.0f} min if every update ran at its matmul floor. Issue 3 asks for 45 "
+          f"min for the whole `dvc repro`, of which `evaluate`, `figures` and `report` take a few minutes")
 
     print("== 2. one MADDPG update of 9 agents ==")
     for config in CONFIGS:
@@ -308,7 +319,7 @@ def main(argv=None) -> int:
         rc = run_config(params, "paper", "cr")
         with tempfile.TemporaryDirectory() as tmp:
             tr = Trainer(rc, square, params.train.episodes, 0, Path(tmp) / "run", progress=False)
-            summary = tr.run()
+            (summary,) = tr.run()
         print(f"wall {summary['wall_seconds']:.1f} s (updates {summary['update_seconds']:.1f} s, "
               f"{summary['updates']} updates)")
     return 0

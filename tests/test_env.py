@@ -88,6 +88,22 @@ def test_seeding(params, regions):
     assert not np.array_equal(a, c)
 
 
+def test_blocks_of_environments_draw_from_their_own_seeds(params, regions):
+    """Six environments seeded [4, 9] are two blocks of three: each block starts as three environments seeded
+    alone, and steps as they do; the environments must split into equal blocks."""
+    kw = dict(reward="cr", cr=params.cr_reward)
+    both = CoverageEnv(regions["square"], params.world, params.coverage, n_envs=6, seed=[4, 9], **kw)
+    alone = [CoverageEnv(regions["square"], params.world, params.coverage, n_envs=3, seed=s, **kw) for s in (4, 9)]
+    for _ in range(2):  # a second episode continues each block's generator
+        np.testing.assert_array_equal(both.reset(), np.concatenate([env.reset() for env in alone]))
+    action = np.random.default_rng(0).uniform(-1, 1, (6, params.world.n_agents, 2))
+    step = both.step(action)
+    steps = [env.step(a) for env, a in zip(alone, np.split(action, 2))]
+    np.testing.assert_array_equal(step.reward, np.concatenate([s.reward for s in steps]))
+    with pytest.raises(ValueError, match="equal blocks"):
+        CoverageEnv(regions["square"], params.world, params.coverage, n_envs=6, seed=[1, 2, 3, 4])
+
+
 def test_rewards_have_shapes_and_sharing(params, regions):
     sw = make(params, regions["square"], n_envs=3, reward="sw", seed=0)
     sw.reset()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from replicate.maddpg import MADDPG, BatchedMLP, NStepWriter, ReplayBuffer, adam_step, soft_update
+from replicate.maddpg import MADDPG, Batch, BatchedMLP, NStepWriter, ReplayBuffer, adam_step, soft_update
 from replicate.maddpg_loop import LoopMADDPG
 
 
@@ -140,6 +140,59 @@ def test_adam_step_is_the_optimizer_step():
         for p, q in zip(*(n.parameters() for n in nets)):
             assert torch.equal(p, q)
     assert opts[1].state_dict()["state"][0]["step"].item() == 6
+
+
+@pytest.mark.parametrize("config, mode", [("tuned", "individual"), ("paper", "shared")])
+def test_a_stack_of_runs_is_its_runs_bit_for_bit(params, config, mode):
+    """MADDPG over seeds [3, 8, 4] against three one-seed MADDPGs fed the same minibatches: every parameter, Adam
+    moment and diagnostic is equal to the last bit after 30 updates (elementwise kernels round the last few
+    elements of a tensor differently, so Adam and the soft update work on each run's part as its own tensor), and
+    ``state_dict(run)`` is the one-run state."""
+    cfg = dataclasses.replace(params.configs[config].maddpg, batch_size=64)
+    seeds = [3, 8, 4]
+    stack = MADDPG(9, 2, 2, cfg, mode, seeds)
+    alone = [MADDPG(9, 2, 2, cfg, mode, s) for s in seeds]
+    rng = np.random.default_rng(0)
+    buffers = [filled_buffer(9, 2, rng) for _ in seeds]
+    for _ in range(30):
+        batches = [b.sample(rng, cfg.batch_size) for b in buffers]
+        got = stack.update(Batch.stack(batches))
+        for k, (agent, batch) in enumerate(zip(alone, batches)):
+            want = agent.update(batch)
+            assert got["critic_loss"][k] == want["critic_loss"][0] and got["q_abs"][k] == want["q_abs"][0]
+    for k, agent in enumerate(alone):
+        mine, theirs = stack.state_dict(k), agent.state_dict()
+        for name in ("actor", "critic", "actor_target", "critic_target"):
+            for key, t in theirs[name].items():
+                assert torch.equal(mine[name][key], t), (k, name, key)
+        for name in ("actor_opt", "critic_opt"):
+            for i, st in theirs[name]["state"].items():
+                assert all(torch.equal(mine[name]["state"][i][f], st[f]) for f in ("step", "exp_avg", "exp_avg_sq"))
+    obs = rng.normal(size=(3, 5, 9, 2)).astype(np.float32)
+    actions, _ = stack.policy(obs)
+    for k, agent in enumerate(alone):
+        np.testing.assert_array_equal(actions[k], agent.policy(obs[k])[0])
+
+
+def test_a_run_loads_into_any_place_of_a_stack(params):
+    """One run's state goes into the second place of a fresh stack and comes out unchanged; a state of another
+    shape, or runs of one stack at different Adam steps, are refused."""
+    cfg = dataclasses.replace(params.configs["tuned"].maddpg, batch_size=32)
+    rng = np.random.default_rng(2)
+    one = MADDPG(3, 2, 2, cfg, "individual", 5)
+    one.update(filled_buffer(3, 2, rng).sample(rng, 32))
+    stack = MADDPG(3, 2, 2, cfg, "individual", [0, 1])
+    stack.load_state_dict(one.state_dict(), run=1)
+    out = stack.state_dict(1)
+    assert all(torch.equal(out["actor"][k], t) for k, t in one.state_dict()["actor"].items())
+    assert torch.equal(out["critic_opt"]["state"][0]["exp_avg"], one.state_dict()["critic_opt"]["state"][0]["exp_avg"])
+    with pytest.raises((KeyError, RuntimeError)):
+        stack.load_state_dict(MADDPG(4, 2, 2, cfg, "individual", 0).state_dict(), run=0)
+    two = MADDPG(3, 2, 2, cfg, "individual", 6)
+    for _ in range(2):
+        two.update(filled_buffer(3, 2, rng).sample(rng, 32))
+    with pytest.raises(ValueError, match="different steps"):
+        stack.load_state_dict(two.state_dict(), run=0)
 
 
 def test_individual_and_shared_rewards_differ(params):

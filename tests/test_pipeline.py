@@ -13,6 +13,9 @@ from pathlib import Path
 import pytest
 import yaml
 
+from replicate.config import run_config
+from replicate.pipeline import run_cost
+
 from .conftest import ROOT
 
 # SPEC §9, per configuration: one PNG per panel, named after the paper's figure.
@@ -78,6 +81,16 @@ def test_committed_outputs_are_up_to_date():
             assert (ROOT / out["path"]).exists(), f"{name}: {out['path']} missing"
 
 
+def test_cost_estimate_orders_the_cells_like_the_committed_runs(params):
+    """The estimate that starts the costliest cells first is within a factor of 2 of one core's time for every
+    committed 10,000-episode run, so the longest cells do start first."""
+    runs = json.loads((ROOT / "runs" / "summary.json").read_text())["runs"]
+    assert len(runs) > 10
+    for r in runs:
+        estimate = run_cost(run_config(params, r["config"], r["method"], r["region"]), params.train.episodes)
+        assert 0.5 < estimate / r["core_seconds"] < 2.0, r
+
+
 @pytest.mark.slow
 def test_dvc_repro_end_to_end(tmp_path):
     repo = tmp_path / "repo"
@@ -133,5 +146,6 @@ def test_dvc_repro_end_to_end(tmp_path):
     runs = json.loads((repo / "runs" / "summary.json").read_text())["runs"]
     trained_changes = len(params["ablation"]["changes"]) - 1  # checkpoint_selection reuses the tuned runs
     assert len(runs) == 2 * 2 * 3 * 2 + trained_changes * 2
+    assert {r["runs_in_process"] for r in runs} == {2}, "each cell's two seeds train as one stack"
     status = subprocess.run(["dvc", "status"], cwd=repo, env=env, capture_output=True, text=True)
     assert "up to date" in status.stdout, status.stdout

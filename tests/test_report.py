@@ -17,7 +17,7 @@ def group(per_seed, nn=0.8, conv=(5000, 5000, 5000)):
         "nearest_neighbour": metrics.mean_ci([nn] * len(per_seed)),
         "fraction_inside": metrics.mean_ci([1.0] * len(per_seed)),
         "convergence_episode": list(conv),
-        "wall_seconds": metrics.mean_ci([100.0] * len(per_seed)),
+        "core_seconds": metrics.mean_ci([100.0] * len(per_seed)),
     }
 
 
@@ -46,7 +46,7 @@ def test_ablation_rows_leave_the_coverage_table(params):
 
 
 def test_targets_name_the_missed_bar(params):
-    timing = {"runs": [{"config": "tuned", "method": "cr", "region": r, "wall_seconds": w}
+    timing = {"runs": [{"config": "tuned", "method": "cr", "region": r, "core_seconds": w}
                        for r, w in (("square", 170.0), ("rectangle", 175.0), ("bedok", 200.0))]}
     rows = {r[0]: r for r in targets(split_ablation(summary(params), params), timing)}
     assert rows["square"][-1] == "met"

@@ -9,7 +9,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -92,15 +91,16 @@ def test_short_cr_run_learns(params, regions, tmp_path):
     assert result["trained"][1] > random + 0.1
 
 
-def small_trainer(params, region, out, seed=0, episodes=20, **algo_changes):
-    rc = run_config(params, "tuned", "cr")
+def small_trainer(params, region, out, seed=0, episodes=20, config="tuned", method="cr", **algo_changes):
+    """A short run (or, with lists of seeds and folders, a stack of runs) that learns from its 500th transition."""
+    rc = run_config(params, config, method)
     algo = dataclasses.replace(rc.algo, n_envs=10, maddpg=dataclasses.replace(rc.algo.maddpg, learning_starts=500,
                                                                                 batch_size=32), **algo_changes)
-    return Trainer(dataclasses.replace(rc, algo=algo), region, episodes, seed, Path(out), 10, progress=False)
+    return Trainer(dataclasses.replace(rc, algo=algo), region, episodes, seed, out, 10, progress=False)
 
 
 def test_run_writes_curve_checkpoint_actors(params, regions, tmp_path):
-    summary = small_trainer(params, regions["square"], tmp_path / "run").run()
+    (summary,) = small_trainer(params, regions["square"], tmp_path / "run").run()
     for name in (CURVE, "checkpoint.pt", "actors.pt", "run.json"):
         assert (tmp_path / "run" / name).exists()
     assert summary["status"] == "finished" and summary["transitions"] == 20 * 50
@@ -128,7 +128,7 @@ def test_training_writes_n_step_transitions(params, regions, tmp_path):
     cfg, horizon, n_env = tr.rc.algo.maddpg, tr.rc.world.episode_length, tr.rc.algo.n_envs
     assert cfg.n_step == 5
     tr.run()
-    disc = tr.buffer.disc[: tr.buffer.size]
+    disc = tr.buffers[0].disc[: tr.buffers[0].size]
     assert len(disc) == n_env * horizon
     for m, count in ((5, horizon - 4), (4, 1), (3, 1), (2, 1), (1, 1)):
         assert np.isclose(disc, np.float32(cfg.gamma**m)).sum() == n_env * count, m
@@ -153,7 +153,7 @@ def test_selection_keeps_the_best_validated_actors(params, regions, tmp_path):
     """With select_every, actors.pt holds the actors of the best validation, and they score that again."""
     trainer = small_trainer(params, regions["square"], tmp_path / "run", episodes=60, select_every=10,
                             select_episodes=6)
-    summary = trainer.run()
+    (summary,) = trainer.run()
     val = evaluate.read_curve(tmp_path / "run" / "validation.csv")
     assert list(val["episode"]) == [10, 20, 30, 40, 50, 60]
     best = len(val["coverage"]) - 1 - int(np.argmax(val["coverage"][::-1]))  # ties go to the later one
@@ -162,9 +162,9 @@ def test_selection_keeps_the_best_validated_actors(params, regions, tmp_path):
     net, meta = load_actors(tmp_path / "run" / "actors.pt")
     assert meta["selected_episode"] == summary["selected_episode"]
     trainer.agent.actor.load_state_dict(meta["actor"])
-    assert trainer.validate(60) == summary["selected_validation_coverage"]
+    assert trainer.validate(60) == [summary["selected_validation_coverage"]]
     # the validation starts are the run's own, not the evaluation seed's
-    assert trainer.val_seed != params.evaluate.seed
+    assert trainer.val_seeds[0] != params.evaluate.seed
 
 
 def test_union_weight_sets_c2_and_the_run_identity(params, regions):
@@ -190,6 +190,77 @@ def test_runs_of_older_training_code_are_not_reused(params, regions, tmp_path):
     (out / "run.json").write_text(json.dumps({**identity, "training_version": TRAINING_VERSION - 1,
                                               "status": "finished"}))
     assert finished_run(out, identity) is None  # trained by older arithmetic: train again
+
+
+@pytest.mark.parametrize("config, method", [("tuned", "cr"), ("paper", "sw")])
+def test_runs_trained_together_are_the_runs_trained_alone(params, regions, tmp_path, config, method):
+    """Seeds 3 and 7 trained as one stack write, bit for bit, the curves, validations and actors that they write
+    trained one at a time: the stack shares the per-operation cost, never the arithmetic."""
+    kw = {"episodes": 40, "config": config, "method": method}
+    if config == "tuned":
+        kw.update(select_every=20, select_episodes=4)
+    square = regions["square"]
+    for seed in (3, 7):
+        small_trainer(params, square, tmp_path / f"alone{seed}", seed=seed, **kw).run()
+    stack = small_trainer(params, square, [tmp_path / "stack3", tmp_path / "stack7"], seed=[3, 7], **kw)
+    summaries = stack.run()
+    assert [s["seed"] for s in summaries] == [3, 7] and {s["runs_in_process"] for s in summaries} == {2}
+    assert stack.updates > 0
+    for seed in (3, 7):
+        alone, stacked = tmp_path / f"alone{seed}", tmp_path / f"stack{seed}"
+        assert read_text(stacked / CURVE) == read_text(alone / CURVE)
+        for name in ("validation.csv",) if config == "tuned" else ():
+            assert (stacked / name).read_text() == (alone / name).read_text()
+        for a, b in zip(load_actors(stacked / "actors.pt")[0].parameters(),
+                        load_actors(alone / "actors.pt")[0].parameters()):
+            torch.testing.assert_close(a, b, rtol=0, atol=0)
+    assert read_text(tmp_path / "stack3" / CURVE) != read_text(tmp_path / "stack7" / CURVE)
+
+
+class Cut(Exception):
+    pass
+
+
+def cut_at(trainer, episode):
+    """Run ``trainer`` and stop it right after its checkpoint at ``episode``, as a kill would."""
+    save = trainer.save_checkpoint
+
+    def save_then_stop():
+        save()
+        if len(trainer.rows[0]) == episode:
+            raise Cut
+
+    trainer.save_checkpoint = save_then_stop
+    with pytest.raises(Cut):
+        trainer.run()
+
+
+def test_a_stacked_run_resumes_alone_or_in_another_stack(params, regions, tmp_path):
+    """A checkpoint holds one run in the form of a run trained alone. Seeds 3 and 7, cut at episode 40 of 60 as
+    one stack, finish as their uninterrupted runs do: seed 7 continued alone, seed 3 in a stack with seed 5 (cut
+    at 40 alone). Runs whose checkpoints stand at different episodes are refused as a stack."""
+    square = regions["square"]
+
+    def trainer(seeds, folder=None):
+        return small_trainer(params, square, [tmp_path / f"{folder or 'cut'}{s}" for s in seeds], seed=seeds,
+                             episodes=60)
+
+    for seed in (3, 5, 7):
+        trainer([seed], "whole").run()
+    cut_at(trainer([3, 7]), 40)
+    cut_at(trainer([5]), 40)
+    assert len(read_text(tmp_path / "cut7" / CURVE).splitlines()) == 41
+    alone = trainer([7])
+    alone.load_checkpoint()
+    alone.run()
+    pair = trainer([3, 5])
+    pair.load_checkpoint()
+    pair.run()
+    for seed in (3, 5, 7):
+        assert read_text(tmp_path / f"cut{seed}" / CURVE) == read_text(tmp_path / f"whole{seed}" / CURVE)
+    cut_at(trainer([9]), 30)
+    with pytest.raises(CheckpointError, match="different points"):
+        trainer([9, 3]).load_checkpoint()  # seed 3's checkpoint is at 60
 
 
 def test_corrupt_and_mismatched_checkpoints_are_refused(params, regions, tmp_path):

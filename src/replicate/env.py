@@ -1,7 +1,8 @@
 """The coverage world (SPEC §1): MPE point-mass physics for E parallel environments × N buoys.
 
-Every array is batched ``[E, N, ...]``. The environment owns one explicit ``numpy.random.Generator``; nothing
-else draws random numbers. Episodes have a fixed length T, so all E environments start and end together.
+Every array is batched ``[E, N, ...]``. The environment owns explicit ``numpy.random.Generator``s, one per block
+of environments (one block unless several runs step together, see ``CoverageEnv.seed``); nothing else draws
+random numbers. Episodes have a fixed length T, so all E environments start and end together.
 """
 
 from __future__ import annotations
@@ -66,7 +67,7 @@ class CoverageEnv:
         observation: str = "position",
         geofence: float | None = None,
         union_credit: str = "shared",
-        seed: int | np.random.SeedSequence = 0,
+        seed: int | np.random.SeedSequence | list = 0,
     ):
         if observation not in OBSERVATIONS:
             raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
@@ -97,29 +98,38 @@ class CoverageEnv:
         else:
             minx, miny, maxx, maxy = region.polygon.bounds
             self.fence = (np.array([minx, miny]) - geofence, np.array([maxx, maxy]) + geofence)
-        self.rng = np.random.default_rng(seed)
+        self.seed(seed)
         self.pos = np.zeros((n_envs, self.n_agents, 2))
         self.vel = np.zeros((n_envs, self.n_agents, 2))
         self.t = 0
 
     # ---- episode -----------------------------------------------------------------------------------------
-    def seed(self, seed: int | np.random.SeedSequence) -> None:
-        self.rng = np.random.default_rng(seed)
+    def seed(self, seed: int | np.random.SeedSequence | list) -> None:
+        """One seed for all E environments, or a list of S seeds: the E environments split into S equal blocks and
+        block s draws its starts from seed s alone, so S independent runs step as one batch (``train.Trainer``)."""
+        seeds = list(seed) if isinstance(seed, (list, tuple)) else [seed]
+        if not seeds or self.n_envs % len(seeds):
+            raise ValueError(f"{self.n_envs} environments do not split into {len(seeds)} equal blocks")
+        self.rngs = [np.random.default_rng(s) for s in seeds]
 
-    def sample_start(self, count: int) -> np.ndarray:
-        """``count`` positions uniform in the start patch (rejection sampling from its box). → [count, 2]."""
+    def sample_start(self, count: int, rng: np.random.Generator | None = None) -> np.ndarray:
+        """``count`` positions uniform in the start patch (rejection sampling from its box), drawn from ``rng``
+        (default: the first block's). → [count, 2]."""
+        rng = self.rngs[0] if rng is None else rng
         minx, miny, maxx, maxy = self.patch.bounds
         out = np.empty((0, 2))
         while len(out) < count:
-            cand = self.rng.uniform((minx, miny), (maxx, maxy), size=(2 * count, 2))
+            cand = rng.uniform((minx, miny), (maxx, maxy), size=(2 * count, 2))
             out = np.concatenate([out, cand[shapely.contains_xy(self.patch, cand[:, 0], cand[:, 1])]])
         return out[:count]
 
-    def reset(self, seed: int | np.random.SeedSequence | None = None) -> np.ndarray:
+    def reset(self, seed: int | np.random.SeedSequence | list | None = None) -> np.ndarray:
         """Release all buoys in the start patch at rest. → obs [E, N, obs_dim]."""
         if seed is not None:
             self.seed(seed)
-        self.pos = self.sample_start(self.n_envs * self.n_agents).reshape(self.n_envs, self.n_agents, 2)
+        per_block = self.n_envs // len(self.rngs) * self.n_agents
+        starts = [self.sample_start(per_block, rng) for rng in self.rngs]
+        self.pos = np.concatenate(starts).reshape(self.n_envs, self.n_agents, 2)
         self.vel = np.zeros_like(self.pos)
         self.t = 0
         return self.observe()

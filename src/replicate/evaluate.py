@@ -19,7 +19,7 @@ from . import artifacts, baselines, metrics
 from .config import ConfigError, Params, RunConfig, load_params, run_config, selection_only
 from .env import CoverageEnv
 from .regions import Region, make_region
-from .train import CURVE, load_actors
+from .train import CURVE, core_seconds, load_actors
 
 BASELINES = ("random", "naive", "lloyd", "lloyd_converged")
 
@@ -101,7 +101,7 @@ def evaluate_run(run_dir: str | Path, params: Params, region: Region, actors: st
         episodes=ident["episodes"],
         convergence_episode=conv,
         training_coverage_last100=float(curve["coverage"][-100:].mean()),
-        wall_seconds=run.get("wall_seconds"),
+        core_seconds=core_seconds(run),  # one core's time for the run
     )
     return out
 
@@ -248,6 +248,6 @@ def summarise_metrics(results) -> dict:
             "nearest_neighbour": metrics.mean_ci([r["nearest_neighbour"]["mean"] for r in rs]),
             "fraction_inside": metrics.mean_ci([r["fraction_inside"]["mean"] for r in rs]),
             "convergence_episode": conv,
-            "wall_seconds": metrics.mean_ci([r["wall_seconds"] or np.nan for r in rs]),
+            "core_seconds": metrics.mean_ci([r["core_seconds"] for r in rs]),
         }
     return {"runs": runs, "baselines": baselines}

@@ -4,6 +4,11 @@ Centralised critics Q_i(x, a_1..a_N) see every observation and action; decentral
 own observation. The N agents' networks are stacked (weights [N, in, out]) and evaluated with one batched
 matmul per layer, so an update of all agents is one forward/backward pass, not a Python loop over agents. Because
 each agent's parameters and Adam state are separate slices, this is the same algorithm as N separate learners.
+Several independent runs (seeds) of the N agents can train in one process: their networks are stacked too
+(weights [S·N, in, out]) and every array carries a leading run axis [S, ...]. A run's arithmetic does not depend on
+the stack it trains in (each stacked matrix is multiplied, reduced and stepped on its own;
+``tests/test_training.py`` checks that a run's curve is bit for bit its single-run curve), and the per-operation
+overhead that dominates an update at ``tuned``'s batch of 128 is paid once for the stack (``make bench``).
 The backward pass is written out (two matmuls per layer) rather than left to autograd: 1.4× faster per update at
 the paper's batch of 1024 and as fast at `tuned`'s 128 (``make bench`` section 2), because each matmul takes the
 form the CPU BLAS runs fastest and the actor's gradient reads only the critic's own-action columns.
@@ -16,6 +21,8 @@ paper's modified MADDPG (critic i learns agent i's own reward, eq. 6).
 from __future__ import annotations
 
 import copy
+import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,6 +64,16 @@ class BatchedMLP(nn.Module):
             w = (torch.rand(n, fan_in, fan_out, generator=generator) * 2 - 1) * bound
             self.weights.append(nn.Parameter(w))
             self.biases.append(nn.Parameter(torch.zeros(n, 1, fan_out)))
+
+    @classmethod
+    def stack(cls, nets: list[BatchedMLP]) -> BatchedMLP:
+        """One network holding ``nets`` one after another along the stacked axis: [n₁ + n₂ + …, in, out]."""
+        out = copy.deepcopy(nets[0])
+        with torch.no_grad():
+            for k in range(len(out.weights)):
+                out.weights[k] = nn.Parameter(torch.cat([net.weights[k] for net in nets]))
+                out.biases[k] = nn.Parameter(torch.cat([net.biases[k] for net in nets]))
+        return out
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.forward_saving(x)[0]
@@ -174,13 +191,19 @@ class NStepWriter:
 
 @dataclass
 class Batch:
-    """Sampled joint transitions: obs/next_obs [B, N, obs_dim], act [B, N, act_dim], rew [B, N], disc [B]."""
+    """Sampled joint transitions: obs/next_obs [B, N, obs_dim], act [B, N, act_dim], rew [B, N], disc [B]; a
+    stack of S runs' minibatches has a leading [S] on each."""
 
     obs: torch.Tensor
     act: torch.Tensor
     rew: torch.Tensor
     next_obs: torch.Tensor
     disc: torch.Tensor
+
+    @classmethod
+    def stack(cls, batches: list[Batch]) -> Batch:
+        """The minibatches of S runs as one: every field gains a leading run axis [S, B, ...]."""
+        return cls(*(torch.stack([getattr(b, f.name) for b in batches]) for f in dataclasses.fields(cls)))
 
 
 def clip_grad_per_agent(params: list[torch.Tensor], max_norm: float) -> None:
@@ -191,35 +214,53 @@ def clip_grad_per_agent(params: list[torch.Tensor], max_norm: float) -> None:
     torch._foreach_mul_(grads, [s.view(-1, *([1] * (g.dim() - 1))) for s, g in zip(scales, grads)])
 
 
+def per_run(tensors: list[torch.Tensor], runs: int) -> list[torch.Tensor]:
+    """Each stacked tensor split into its ``runs`` runs' parts (views). An elementwise kernel vectorises a tensor
+    in blocks and finishes its last few elements one by one, with different rounding; given one run's part as a
+    tensor of its own, it rounds every element as it would in a one-run MADDPG."""
+    return tensors if runs == 1 else [part for t in tensors for part in t.chunk(runs)]
+
+
 @torch.no_grad()
-def adam_step(opt: torch.optim.Adam) -> None:
-    """``opt.step()`` for a one-group fused Adam, without the ``Optimizer.step`` wrapper: the same
-    ``_fused_adam_`` kernel on the optimiser's own state, so the result and ``state_dict`` are the same. The
-    wrapper's bookkeeping cost as much as the kernel on ``tuned``'s small tensors (``make bench`` section 2)."""
+def adam_step(opt: torch.optim.Adam, runs: int = 1) -> None:
+    """``opt.step()`` for a one-group fused Adam over ``runs`` stacked runs, without the ``Optimizer.step``
+    wrapper: the same ``_fused_adam_`` kernel on the optimiser's own state, so the result and ``state_dict`` are the
+    same. The wrapper's bookkeeping cost as much as the kernel on ``tuned``'s small tensors (``make bench``
+    section 2)."""
     (group,) = opt.param_groups
     params = group["params"]
-    if not opt.state:
-        opt.step()  # the first step creates the state
-        return
+    for p in params:
+        if p not in opt.state:  # the first step creates the state, as ``opt.step()`` does
+            opt.state[p] = {"step": torch.tensor(0.0), "exp_avg": torch.zeros_like(p),
+                            "exp_avg_sq": torch.zeros_like(p)}
     state = [opt.state[p] for p in params]
     steps = [s["step"] for s in state]
     torch._foreach_add_(steps, 1)
     beta1, beta2 = group["betas"]
     torch._fused_adam_(
-        params, [p.grad for p in params], [s["exp_avg"] for s in state], [s["exp_avg_sq"] for s in state], [], steps,
+        per_run(params, runs), per_run([p.grad for p in params], runs), per_run([s["exp_avg"] for s in state], runs),
+        per_run([s["exp_avg_sq"] for s in state], runs), [], [step for step in steps for _ in range(runs)],
         lr=group["lr"], beta1=beta1, beta2=beta2, weight_decay=group["weight_decay"], eps=group["eps"],
         amsgrad=False, maximize=False,
     )
 
 
 @torch.no_grad()
-def soft_update(target: list[torch.Tensor], online: list[torch.Tensor], tau: float) -> None:
-    """θ' ← τθ + (1 − τ)θ' for parameter lists."""
-    torch._foreach_lerp_(target, online, tau)
+def soft_update(target: list[torch.Tensor], online: list[torch.Tensor], tau: float, runs: int = 1) -> None:
+    """θ' ← τθ + (1 − τ)θ' for parameter lists of ``runs`` stacked runs."""
+    torch._foreach_lerp_(per_run(target, runs), per_run(online, runs), tau)
+
+
+NETWORKS = ("actor", "critic", "actor_target", "critic_target")
+OPTIMISERS = ("actor_opt", "critic_opt")
 
 
 class MADDPG:
-    """N MADDPG learners with stacked networks. ``act`` for rollouts, ``update`` for one step of all agents."""
+    """N MADDPG learners with stacked networks, for S independent runs at once (one per seed).
+
+    ``act`` for rollouts, ``update`` for one step of all agents of all runs. Arrays carry a leading run axis
+    [S, ...]; with one seed it may be left out. ``state_dict(run)`` and ``load_state_dict(state, run)`` read and
+    write one run's part, in the same form whatever the stack, so a run trained in a stack resumes alone."""
 
     def __init__(
         self,
@@ -228,104 +269,169 @@ class MADDPG:
         act_dim: int,
         cfg: MADDPGConfig,
         reward_mode: str,
-        seed: int,
+        seed: int | Sequence[int],
         device: str = "cpu",
     ):
         if reward_mode not in ("shared", "individual"):
             raise ValueError(f"reward_mode must be 'shared' or 'individual', got {reward_mode!r}")
-        self.n, self.obs_dim, self.act_dim = n_agents, obs_dim, act_dim
+        seeds = [seed] if isinstance(seed, int) else list(seed)
+        if not seeds:
+            raise ValueError("MADDPG needs at least one seed")
+        self.n, self.runs, self.obs_dim, self.act_dim = n_agents, len(seeds), obs_dim, act_dim
         self.cfg, self.reward_mode, self.device = cfg, reward_mode, torch.device(device)
-        g = torch.Generator().manual_seed(seed)
         joint = n_agents * (obs_dim + act_dim)
-        self.actor = BatchedMLP(n_agents, [obs_dim, cfg.hidden, cfg.hidden, act_dim], g).to(self.device)
-        self.critic = BatchedMLP(n_agents, [joint, cfg.hidden, cfg.hidden, 1], g).to(self.device)
+        actors, critics = [], []
+        for s in seeds:  # each run draws its actor, then its critic, from its own generator
+            g = torch.Generator().manual_seed(s)
+            actors.append(BatchedMLP(n_agents, [obs_dim, cfg.hidden, cfg.hidden, act_dim], g))
+            critics.append(BatchedMLP(n_agents, [joint, cfg.hidden, cfg.hidden, 1], g))
+        self.actor = BatchedMLP.stack(actors).to(self.device)  # [S·N, ...]: run s holds rows s·N … s·N + N − 1
+        self.critic = BatchedMLP.stack(critics).to(self.device)
         self.actor_target = copy.deepcopy(self.actor)
         self.critic_target = copy.deepcopy(self.critic)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr, fused=True)
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr, fused=True)
-        nets = ("actor", "critic", "actor_target", "critic_target")
-        self.params = {k: list(getattr(self, k).parameters()) for k in nets}  # load_state_dict copies in place
+        self.params = {k: list(getattr(self, k).parameters()) for k in NETWORKS}  # load_state_dict copies in place
         self.agents = torch.arange(n_agents, device=self.device)
         # rows of critic i's first layer that read agent i's own action: the joint input is [o_1..o_N, a_1..a_N]
         own = n_agents * obs_dim + self.agents[:, None] * act_dim + torch.arange(act_dim, device=self.device)
-        self.own_action_rows = own  # [N, ad]
+        self.own_action_rows = own.repeat(self.runs, 1)  # [S·N, ad]
+        self.stacked = torch.arange(self.runs * n_agents, device=self.device)[:, None]  # [S·N, 1]
 
     def scale_learning_rates(self, factor: float) -> None:
         """Set the actor and critic learning rates to ``factor`` × their configured values."""
         self.actor_opt.param_groups[0]["lr"] = factor * self.cfg.actor_lr
         self.critic_opt.param_groups[0]["lr"] = factor * self.cfg.critic_lr
 
+    def _with_runs(self, x, tail: int):
+        """An array of one run gains the run axis; one that has it is checked: [S, ...] with ``tail`` axes after."""
+        if x.ndim == tail and self.runs == 1:
+            return x[None]
+        if x.ndim != tail + 1 or x.shape[0] != self.runs:
+            raise ValueError(f"expected a leading run axis of {self.runs}, got shape {tuple(x.shape)}")
+        return x
+
     @torch.no_grad()
     def policy(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Deterministic actions μ_i(o_i): obs [E, N, obs_dim] → (actions [E, N, act_dim], pre-tanh [E, N, act_dim])."""
-        x = torch.from_numpy(np.ascontiguousarray(obs.transpose(1, 0, 2))).to(self.device)
-        pre = self.actor(x)
-        return torch.tanh(pre).transpose(0, 1).cpu().numpy(), pre.transpose(0, 1).cpu().numpy()
+        """Deterministic actions μ_i(o_i): obs [S, E, N, obs_dim] → (actions, pre-tanh), both [S, E, N, act_dim];
+        with one run also [E, N, obs_dim] → [E, N, act_dim]."""
+        runs = self._with_runs(obs, 3)
+        s, e = runs.shape[:2]
+        x = torch.from_numpy(np.ascontiguousarray(runs.transpose(0, 2, 1, 3).reshape(s * self.n, e, -1)))
+        pre = self.actor(x.to(self.device)).view(s, self.n, e, -1).transpose(1, 2).cpu()
+        pre = pre.reshape(*obs.shape[:-1], -1)
+        return torch.tanh(pre).numpy(), pre.numpy()
 
-    def act(self, obs: np.ndarray, sigma: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Exploration actions clip(μ(o) + σ·ε, −1, 1) and the deterministic μ(o), both [E, N, act_dim]."""
+    def act(self, obs: np.ndarray, sigma: float, rngs: list[np.random.Generator]) -> tuple[np.ndarray, np.ndarray]:
+        """Exploration actions clip(μ(o) + σ·ε, −1, 1) and the deterministic μ(o), shaped as ``policy``'s; run s
+        draws its ε from ``rngs[s]``."""
         mu, _ = self.policy(obs)
-        noisy = mu + sigma * rng.standard_normal(mu.shape) if sigma > 0 else mu
-        return np.clip(noisy, -1.0, 1.0).astype(np.float32), mu
+        if sigma <= 0:
+            return mu.astype(np.float32), mu
+        runs = mu.reshape(len(rngs), *mu.shape[-3:])
+        noisy = np.stack([m + sigma * rng.standard_normal(m.shape) for m, rng in zip(runs, rngs, strict=True)])
+        return np.clip(noisy, -1.0, 1.0).astype(np.float32).reshape(mu.shape), mu
 
     @torch.no_grad()
-    def update(self, batch: Batch) -> dict[str, float]:
-        """One gradient step of every agent's critic, then actor, then the soft target update.
+    def update(self, batch: Batch) -> dict[str, np.ndarray]:
+        """One gradient step of every agent's critic, then actor, then the soft target update, in every run.
+        ``batch`` is [S, B, ...] (``Batch.stack``), or [B, ...] with one run. → each run's diagnostics, [S].
 
         The gradients are written out (``BatchedMLP.backward``); ``tests/test_maddpg.py`` checks them against
         the per-agent autograd loop of ``maddpg_loop``."""
-        cfg, n = self.cfg, self.n
-        obs, act, rew, next_obs, disc = (
-            t.to(self.device) for t in (batch.obs, batch.act, batch.rew, batch.next_obs, batch.disc))
-        bsz = obs.shape[0]
-        own_obs = obs.transpose(0, 1).contiguous()  # [N, B, od]: o_i for actor i
-        r = rew.T if self.reward_mode == "individual" else rew.mean(dim=1).expand(n, bsz)  # [N, B]
-        x = obs.reshape(1, bsz, -1).expand(n, bsz, n * self.obs_dim)  # every critic sees all observations
+        cfg, n, s = self.cfg, self.n, self.runs
+        obs, act, next_obs = (self._with_runs(t.to(self.device), 3) for t in (batch.obs, batch.act, batch.next_obs))
+        rew, disc = self._with_runs(batch.rew.to(self.device), 2), self._with_runs(batch.disc.to(self.device), 1)
+        bsz = obs.shape[1]
+
+        def each_critic(t):  # [S, B, ...] → [S·N, B, ...]: every critic of run s sees run s's t
+            return t.unsqueeze(1).expand(s, n, *t.shape[1:]).reshape(s * n, *t.shape[1:])
+
+        def per_agent(t):  # [S, B, N, ...] → [S·N, B, ...]: agent i's own slice
+            return t.transpose(1, 2).reshape(s * n, bsz, *t.shape[3:])
+
+        r = per_agent(rew) if self.reward_mode == "individual" else each_critic(rew.mean(dim=2))  # [S·N, B]
+        x = each_critic(obs.reshape(s, bsz, -1))  # every critic sees all observations of its run
 
         # Critic: y_i = r_i + γ Q'_i(x', μ'_1(o'_1), …, μ'_N(o'_N))   (paper eq. y; no terminal states; an m-step
         # transition holds r_i = Σ_k γᵏ r_i,t+k and disc = γᵐ, Sutton & Barto §7.1)
-        next_act = torch.tanh(self.actor_target(next_obs.transpose(0, 1)))  # [N, B, ad]
-        x_next = torch.cat([next_obs.reshape(bsz, -1), next_act.transpose(0, 1).reshape(bsz, -1)], dim=-1)
-        y = r + disc * self.critic_target(x_next.expand(n, bsz, -1)).squeeze(-1)
-        q, saved = self.critic.forward_saving(torch.cat([x, act.reshape(1, bsz, -1).expand(n, bsz, -1)], dim=-1))
-        td = q.squeeze(-1) - y  # [N, B]
-        critic_loss = (td**2).mean(dim=1).sum()
+        next_act = torch.tanh(self.actor_target(per_agent(next_obs))).view(s, n, bsz, -1).transpose(1, 2)
+        x_next = torch.cat([next_obs.reshape(s, bsz, -1), next_act.reshape(s, bsz, -1)], dim=-1)
+        y = r + each_critic(disc) * self.critic_target(each_critic(x_next)).squeeze(-1)
+        q, saved = self.critic.forward_saving(torch.cat([x, each_critic(act.reshape(s, bsz, -1))], dim=-1))
+        td = q.squeeze(-1) - y  # [S·N, B]
         self.critic.backward(saved, (2.0 / bsz) * td.unsqueeze(-1))  # ∂L/∂Q_i = 2(Q_i − y_i)/B
         clip_grad_per_agent(self.params["critic"], cfg.grad_clip)
-        adam_step(self.critic_opt)
+        adam_step(self.critic_opt, s)
 
         # Actor: ∇θ_i J = E[∇θ_i μ_i(o_i) ∇a_i Q_i(x, a_1, …, μ_i(o_i), …, a_N)] + 1e-3·mean(pre-tanh²)
-        pre, actor_saved = self.actor.forward_saving(own_obs)  # [N, B, ad]
+        pre, actor_saved = self.actor.forward_saving(per_agent(obs))  # [S·N, B, ad]
         mu = torch.tanh(pre)
-        joint = act.unsqueeze(0).repeat(n, 1, 1, 1)  # [N, B, N, ad]: critic i sees the batch's actions ...
-        joint[self.agents, :, self.agents] = mu  # ... except its own agent's, μ_i(o_i)
-        q_pi, saved = self.critic.forward_saving(torch.cat([x, joint.flatten(2)], dim=-1))
+        joint = act.unsqueeze(1).repeat(1, n, 1, 1, 1)  # [S, N, B, N, ad]: critic i sees the batch's actions ...
+        joint[:, self.agents, :, self.agents] = mu.view(s, n, bsz, -1).transpose(0, 1)  # ... but its own, μ_i(o_i)
+        q_pi, saved = self.critic.forward_saving(torch.cat([x, joint.view(s * n, bsz, -1)], dim=-1))
         d_z1 = self.critic.backward(saved, torch.full_like(q_pi, -1.0 / bsz), weight_grads=False)  # −mean Q_i
-        d_mu = stacked_matmul(d_z1, self.critic.weights[0][self.agents[:, None], self.own_action_rows].mT)
+        d_mu = stacked_matmul(d_z1, self.critic.weights[0][self.stacked, self.own_action_rows].mT)
         d_pre = d_mu * (1.0 - mu * mu) + (2.0 * cfg.actor_reg / pre[0].numel()) * pre  # through tanh; + reg
         self.actor.backward(actor_saved, d_pre)  # through μ_i only, not into Q's weights
-        actor_loss = (-q_pi.squeeze(-1).mean(dim=1) + cfg.actor_reg * (pre**2).mean(dim=(1, 2))).sum()
         clip_grad_per_agent(self.params["actor"], cfg.grad_clip)
-        adam_step(self.actor_opt)
+        adam_step(self.actor_opt, s)
 
-        soft_update(self.params["critic_target"], self.params["critic"], cfg.tau)  # θ' ← τθ + (1 − τ)θ'
-        soft_update(self.params["actor_target"], self.params["actor"], cfg.tau)
+        soft_update(self.params["critic_target"], self.params["critic"], cfg.tau, s)  # θ' ← τθ + (1 − τ)θ'
+        soft_update(self.params["actor_target"], self.params["actor"], cfg.tau, s)
+        losses = (td**2).mean(dim=1).view(s, n)  # each critic's loss
         return {
-            "critic_loss": critic_loss.item() / n,
-            "q_abs": q.abs().mean().item(),
-            "actor_loss": actor_loss.item() / n,
+            "critic_loss": np.array([run.sum().item() / n for run in losses]),
+            "q_abs": np.array([run.abs().mean().item() for run in q.view(s, -1)]),
         }
 
-    def state_dict(self) -> dict:
-        return {
-            "actor": self.actor.state_dict(),
-            "critic": self.critic.state_dict(),
-            "actor_target": self.actor_target.state_dict(),
-            "critic_target": self.critic_target.state_dict(),
-            "actor_opt": self.actor_opt.state_dict(),
-            "critic_opt": self.critic_opt.state_dict(),
-        }
+    # ---- one run's part of the stack, for its checkpoint -----------------------------------------------------
+    def network_state(self, name: str, run: int = 0) -> dict:
+        """Run ``run``'s part of one network (``NETWORKS``), as a one-run MADDPG's ``state_dict`` holds it."""
+        rows = slice(run * self.n, (run + 1) * self.n)
+        return {p: t[rows].clone() for p, t in getattr(self, name).state_dict().items()}
 
-    def load_state_dict(self, state: dict) -> None:
-        for name in ("actor", "critic", "actor_target", "critic_target", "actor_opt", "critic_opt"):
-            getattr(self, name).load_state_dict(state[name])
+    def state_dict(self, run: int = 0) -> dict:
+        """Run ``run``'s networks and Adam states, shaped as a one-run MADDPG's."""
+        rows = slice(run * self.n, (run + 1) * self.n)
+        state = {k: self.network_state(k, run) for k in NETWORKS}
+        for k in OPTIMISERS:
+            full = getattr(self, k).state_dict()
+            part = {i: {"step": st["step"].clone(), "exp_avg": st["exp_avg"][rows].clone(),
+                        "exp_avg_sq": st["exp_avg_sq"][rows].clone()} for i, st in full["state"].items()}
+            state[k] = {"state": part, "param_groups": full["param_groups"]}
+        return state
+
+    def load_state_dict(self, state: dict, run: int = 0) -> None:
+        """Write a one-run state (``state_dict``) into run ``run``'s part of the stack. Every run of a stack is
+        loaded before it trains on: their Adam steps must agree."""
+        rows = slice(run * self.n, (run + 1) * self.n)
+        with torch.no_grad():
+            for k in NETWORKS:
+                net, theirs = getattr(self, k), state[k]
+                if set(theirs) != set(net.state_dict()):
+                    raise KeyError(f"{k}: parameters {sorted(theirs)} do not match")
+                for name, t in net.state_dict().items():
+                    t[rows] = theirs[name]
+        for k in OPTIMISERS:
+            opt, theirs = getattr(self, k), state[k]
+            if not theirs["state"]:
+                continue  # saved before the first update
+            if not opt.state:
+                opt.load_state_dict(self._stacked_state(theirs))
+            for p, st in zip(opt.param_groups[0]["params"], theirs["state"].values(), strict=True):
+                mine = opt.state[p]
+                if not torch.equal(mine["step"], st["step"]):
+                    raise ValueError(f"{k}: runs of one stack are at different steps")
+                mine["exp_avg"][rows] = st["exp_avg"]
+                mine["exp_avg_sq"][rows] = st["exp_avg_sq"]
+            opt.param_groups[0]["lr"] = theirs["param_groups"][0]["lr"]
+
+    def _stacked_state(self, one: dict) -> dict:
+        """An optimiser state for the whole stack, every run's moments tiled from one run's (then overwritten)."""
+        def tile(t):
+            return t.repeat(self.runs, *[1] * (t.dim() - 1))
+
+        return {"state": {i: {"step": st["step"].clone(), "exp_avg": tile(st["exp_avg"]),
+                              "exp_avg_sq": tile(st["exp_avg_sq"])} for i, st in one["state"].items()},
+                "param_groups": one["param_groups"]}

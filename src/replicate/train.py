@@ -9,11 +9,10 @@ the run's fixed validation starts, whose coverage is logged in ``validation.csv`
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +24,7 @@ from .artifacts import CHECKPOINT_FORMAT, CheckpointError
 from .config import ConfigError, RunConfig, to_dict
 from .env import CoverageEnv
 from .geometry import region_key
-from .maddpg import MADDPG, NStepWriter, ReplayBuffer
+from .maddpg import MADDPG, Batch, NStepWriter, ReplayBuffer
 from .regions import Region
 
 DIAGNOSTICS = ("critic_loss", "q_abs", "saturated", "noise")
@@ -67,6 +66,12 @@ def run_identity(rc: RunConfig, region: Region, episodes: int, seed: int) -> dic
     }
 
 
+def core_seconds(summary: dict) -> float:
+    """One core's time for a run: its process's wall time shared among the runs trained in it (runs trained before
+    session 9 ran one per process and do not record ``runs_in_process``)."""
+    return summary["wall_seconds"] / summary.get("runs_in_process", 1)
+
+
 def finished_run(out: str | Path, identity: dict) -> dict | None:
     """The summary of a finished run in ``out`` with this identity, else None."""
     import json
@@ -102,16 +107,20 @@ def make_env(region: Region, rc: RunConfig, n_envs: int, seed, reward: bool = Tr
 
 @dataclass
 class Trainer:
-    """One training run. ``run`` trains up to ``episodes``; construct with ``resume=True`` to continue."""
+    """S training runs of one config, method and region, one per seed of ``seeds``, written to the folders ``outs``
+    (an int and a folder for one run). The runs step together: their environments are blocks of one batch
+    (``CoverageEnv.seed``) and their networks one stack (``MADDPG``), so the per-operation cost of an update and
+    an environment step is paid once for all of them. Each run still draws from its own generators, learns from
+    its own replay buffer and writes its own folder, and its curve is bit for bit the one it gets alone
+    (``tests/test_training.py``). ``run`` trains to ``episodes``; ``load_checkpoint`` first, to continue."""
 
     rc: RunConfig
     region: Region
     episodes: int
-    seed: int
-    out: Path
+    seeds: int | list[int]
+    outs: str | Path | list
     checkpoint_every: int = 1000
     progress: bool = True
-    rows: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
         algo = self.rc.algo
@@ -119,79 +128,93 @@ class Trainer:
             raise ConfigError(f"episodes must be positive, got {self.episodes}")
         if self.episodes % algo.n_envs:
             raise ConfigError(f"episodes ({self.episodes}) must be a multiple of n_envs ({algo.n_envs})")
-        self.out = Path(self.out)
-        seeds = np.random.SeedSequence(self.seed).spawn(4)
-        self.env = make_env(self.region, self.rc, algo.n_envs, seeds[0])
+        self.seeds = [self.seeds] if isinstance(self.seeds, int) else list(self.seeds)
+        self.outs = [Path(self.outs)] if isinstance(self.outs, (str, Path)) else [Path(o) for o in self.outs]
+        if len(self.outs) != len(self.seeds) or len(set(self.seeds)) != len(self.seeds):
+            raise ConfigError(f"need one folder per seed and distinct seeds, got seeds {self.seeds}")
+        streams = [np.random.SeedSequence(seed).spawn(4) for seed in self.seeds]  # per run: env, noise, sample, val
+        runs = len(self.seeds)
+        self.env = make_env(self.region, self.rc, algo.n_envs * runs, [st[0] for st in streams])
         # validation starts: fixed per run, drawn apart from the evaluation seed so selection cannot fit it
-        self.val_seed = int(seeds[3].generate_state(1)[0])
-        self.val_env = (make_env(self.region, self.rc, algo.select_episodes, self.val_seed, reward=False)
+        self.val_seeds = [int(st[3].generate_state(1)[0]) for st in streams]
+        self.val_env = (make_env(self.region, self.rc, algo.select_episodes * runs, self.val_seeds, reward=False)
                         if algo.select_every else None)
-        self.validation: list[list[float]] = []  # [episode, validation coverage]
-        self.best: dict | None = None  # {"episode", "coverage", "actor"}: the actors kept when selecting
-        self.noise_rng = np.random.default_rng(seeds[1])
-        self.sample_rng = np.random.default_rng(seeds[2])
+        self.noise_rngs = [np.random.default_rng(st[1]) for st in streams]
+        self.sample_rngs = [np.random.default_rng(st[2]) for st in streams]
         n, od = self.env.n_agents, self.env.obs_dim
-        self.agent = MADDPG(n, od, 2, algo.maddpg, self.rc.method.reward_mode, seed=self.seed)
+        self.agent = MADDPG(n, od, 2, algo.maddpg, self.rc.method.reward_mode, seed=self.seeds)
         capacity = min(algo.maddpg.buffer_size, self.episodes * self.rc.world.episode_length)
-        self.buffer = ReplayBuffer(capacity, n, od, 2)
-        self.writer = NStepWriter(self.buffer, algo.maddpg.n_step, algo.maddpg.gamma)
-        self.transitions = 0
+        self.buffers = [ReplayBuffer(capacity, n, od, 2) for _ in self.seeds]
+        self.writers = [NStepWriter(b, algo.maddpg.n_step, algo.maddpg.gamma) for b in self.buffers]
+        self.rows: list[list] = [[] for _ in self.seeds]  # per run, one row per episode
+        self.validation: list[list] = [[] for _ in self.seeds]  # per run, [episode, validation coverage]
+        self.best: list[dict | None] = [None] * runs  # per run {"episode", "coverage", "actor"} when selecting
+        self.transitions = 0  # per run
         self.pending_updates = 0.0
-        self.wall = 0.0
+        self.wall = 0.0  # of the whole stack
         self.update_seconds = 0.0  # time spent in MADDPG updates (the rest is environment, geometry, acting)
         self.updates = 0
 
-    # ---- identity of a run, checked on resume ----------------------------------------------------------
-    def identity(self) -> dict:
-        return run_identity(self.rc, self.region, self.episodes, self.seed)
+    def identity(self, run: int = 0) -> dict:
+        """What makes run ``run`` the run it is, checked on resume."""
+        return run_identity(self.rc, self.region, self.episodes, self.seeds[run])
 
-    def run(self) -> dict:
-        """Train to ``episodes``, checkpointing on the way; returns the run summary."""
+    def _runs(self, x: np.ndarray) -> np.ndarray:
+        """[S·E, ...] of the stacked environments → [S, E, ...], one block per run."""
+        return x.reshape(len(self.seeds), -1, *x.shape[1:])
+
+    def run(self) -> list[dict]:
+        """Train every run to ``episodes``, checkpointing on the way; returns the runs' summaries."""
         algo, world = self.rc.algo, self.rc.world
         cfg = algo.maddpg
-        n_env, n, horizon = algo.n_envs, self.env.n_agents, world.episode_length
-        start_batch = len(self.rows) // n_env
+        n_env, n, horizon, runs = algo.n_envs, self.env.n_agents, world.episode_length, len(self.seeds)
+        start_batch = len(self.rows[0]) // n_env
         n_batches = self.episodes // n_env
-        artifacts.write_json(self.out / "run.json", {**self.identity(), "status": "running"})
-        bar = tqdm(total=self.episodes, initial=len(self.rows), disable=not self.progress, unit="ep", smoothing=0.05)
+        for k, out in enumerate(self.outs):
+            artifacts.write_json(out / "run.json", {**self.identity(k), "status": "running"})
+        bar = tqdm(total=self.episodes * runs, initial=len(self.rows[0]) * runs, disable=not self.progress,
+                   unit="ep", smoothing=0.05)
         t0 = time.perf_counter() - self.wall
         for batch in range(start_batch, n_batches):
             sigma = noise_sigma(cfg, batch * n_env / self.episodes)
             self.agent.scale_learning_rates(lr_factor(cfg, batch * n_env / self.episodes))
-            obs = self.env.reset()
-            returns = np.zeros((n_env, n))
-            diag = {"critic_loss": [], "q_abs": []}
-            saturated = 0.0
+            obs = self._runs(self.env.reset())  # [S, E, N, od]
+            returns = np.zeros((runs, n_env, n))
+            diag = {"critic_loss": [], "q_abs": []}  # one [S] array per update
+            saturated = np.zeros(runs)
             for t in range(horizon):
-                action, mu = self.agent.act(obs, sigma, self.noise_rng)
-                saturated += float((np.abs(mu) > 0.99).mean())
-                step = self.env.step(action)
-                self.writer.add(obs, action, step.reward * algo.reward_scale, step.obs, last=t == horizon - 1)
-                returns += step.reward
-                obs = step.obs
+                action, mu = self.agent.act(obs, sigma, self.noise_rngs)
+                saturated += (np.abs(mu) > 0.99).mean(axis=(1, 2, 3))
+                step = self.env.step(action.reshape(-1, n, 2))
+                reward, next_obs = self._runs(step.reward), self._runs(step.obs)
+                for k, writer in enumerate(self.writers):
+                    writer.add(obs[k], action[k], reward[k] * algo.reward_scale, next_obs[k], last=t == horizon - 1)
+                returns += reward
+                obs = next_obs
                 self.transitions += n_env
-                if self.buffer.size >= cfg.learning_starts:
+                if self.buffers[0].size >= cfg.learning_starts:
                     self.pending_updates += n_env / cfg.update_every
                     tu = time.perf_counter()
                     while self.pending_updates >= 1.0:
                         self.pending_updates -= 1.0
-                        stats = self.agent.update(self.buffer.sample(self.sample_rng, cfg.batch_size))
+                        minibatch = Batch.stack([buffer.sample(rng, cfg.batch_size)
+                                                 for buffer, rng in zip(self.buffers, self.sample_rngs)])
+                        stats = self.agent.update(minibatch)
                         diag["critic_loss"].append(stats["critic_loss"])
                         diag["q_abs"].append(stats["q_abs"])
                         self.updates += 1
                     self.update_seconds += time.perf_counter() - tu
             # CR's reward already measured the union at the last step; SW's did not
             coverage = step.union_area / self.region.area if self.rc.method.reward == "cr" else None
-            coverage = self.env.coverage_fraction() if coverage is None else coverage
-            loss = float(np.mean(diag["critic_loss"])) if diag["critic_loss"] else math.nan
-            q_abs = float(np.mean(diag["q_abs"])) if diag["q_abs"] else math.nan
-            for e in range(n_env):
-                episode = batch * n_env + e
-                team = float(returns[e].mean())
-                self.rows.append(
-                    [episode, *returns[e].tolist(), team, float(coverage[e]), loss, q_abs, saturated / horizon, sigma]
-                )
-            bar.update(n_env)
+            coverage = self._runs(self.env.coverage_fraction() if coverage is None else coverage)
+            for k in range(runs):
+                loss = float(np.mean([d[k] for d in diag["critic_loss"]])) if diag["critic_loss"] else math.nan
+                q_abs = float(np.mean([d[k] for d in diag["q_abs"]])) if diag["q_abs"] else math.nan
+                for e in range(n_env):
+                    team = float(returns[k, e].mean())
+                    self.rows[k].append([batch * n_env + e, *returns[k, e].tolist(), team, float(coverage[k, e]),
+                                         loss, q_abs, float(saturated[k] / horizon), sigma])
+            bar.update(n_env * runs)
             bar.set_postfix(reward=f"{returns.mean():.1f}", coverage=f"{coverage.mean():.2f}")
             done = (batch + 1) * n_env
             if algo.select_every and done % algo.select_every < n_env:
@@ -203,104 +226,140 @@ class Trainer:
         self.wall = time.perf_counter() - t0
         self.save_checkpoint()
         self.save_actors()
-        summary = {
-            **self.identity(),
-            "status": "finished",
-            "wall_seconds": round(self.wall, 2),
-            "update_seconds": round(self.update_seconds, 2),
-            "updates": self.updates,
-            "transitions": self.transitions,
-            "final_coverage_last100": float(np.mean([r[n + 2] for r in self.rows[-100:]])),
-        }
-        if self.best is not None:
-            summary["selected_episode"] = self.best["episode"]
-            summary["selected_validation_coverage"] = self.best["coverage"]
-        artifacts.write_json(self.out / "run.json", summary)
-        return summary
+        summaries = []
+        for k, out in enumerate(self.outs):
+            summary = {
+                **self.identity(k),
+                "status": "finished",
+                "wall_seconds": round(self.wall, 2),  # of the stack: every run of it took this long
+                "runs_in_process": runs,  # so one core's time per run is wall_seconds / runs_in_process
+                "update_seconds": round(self.update_seconds, 2),
+                "updates": self.updates,
+                "transitions": self.transitions,
+                "final_coverage_last100": float(np.mean([r[n + 2] for r in self.rows[k][-100:]])),
+            }
+            if self.best[k] is not None:
+                summary["selected_episode"] = self.best[k]["episode"]
+                summary["selected_validation_coverage"] = self.best[k]["coverage"]
+            artifacts.write_json(out / "run.json", summary)
+            summaries.append(summary)
+        return summaries
 
     # ---- selection of the kept actors ------------------------------------------------------------------
-    def validate(self, episode: int) -> float:
-        """Coverage of the current deterministic actors on the run's fixed validation starts; keeps a copy of
-        the actors when it is the best so far (ties go to the later one)."""
+    def validate(self, episode: int) -> list[float]:
+        """Each run's coverage with its current deterministic actors on its fixed validation starts; a run keeps a
+        copy of its actors when that is its best so far (ties go to the later one)."""
         env = self.val_env
-        obs = env.reset(self.val_seed)
+        obs = self._runs(env.reset(self.val_seeds))
         for _ in range(self.rc.world.episode_length):
-            action, _ = self.agent.act(obs, 0.0, self.noise_rng)
-            obs = env.step(action).obs
-        coverage = float(env.coverage_fraction().mean())
-        self.validation.append([episode, coverage])
-        if self.best is None or coverage >= self.best["coverage"]:
-            actor = copy.deepcopy(self.agent.actor.state_dict())
-            self.best = {"episode": episode, "coverage": coverage, "actor": actor}
-        return coverage
+            action, _ = self.agent.act(obs, 0.0, self.noise_rngs)
+            obs = self._runs(env.step(action.reshape(-1, *action.shape[2:])).obs)
+        coverages = [float(c.mean()) for c in self._runs(env.coverage_fraction())]
+        for k, coverage in enumerate(coverages):
+            self.validation[k].append([episode, coverage])
+            if self.best[k] is None or coverage >= self.best[k]["coverage"]:
+                self.best[k] = {"episode": episode, "coverage": coverage, "actor": self.agent.network_state("actor", k)}
+        return coverages
 
-    # ---- persistence ------------------------------------------------------------------------------------
+    # ---- persistence: one folder per run, in the same form whatever the stack -------------------------------
     def save_checkpoint(self) -> None:
         header = curve_header(self.env.n_agents)
-        artifacts.write_csv(self.out / CURVE, header, self.rows)
-        state = {
-            "format": CHECKPOINT_FORMAT,
-            "identity": self.identity(),
-            "agent": self.agent.state_dict(),
-            "buffer": self.buffer.state_dict(),
-            "rng": {
-                "env": self.env.rng.bit_generator.state,
-                "noise": self.noise_rng.bit_generator.state,
-                "sample": self.sample_rng.bit_generator.state,
-            },
-            "rows": self.rows,
-            "transitions": self.transitions,
-            "pending_updates": self.pending_updates,
-            "wall": self.wall,
-            "updates": self.updates,
-            "update_seconds": self.update_seconds,
-            "validation": self.validation,
-            "best": self.best,
-        }
-        if self.rc.algo.select_every:
-            artifacts.write_csv(self.out / "validation.csv", ["episode", "coverage"], self.validation)
-        artifacts.torch_save(self.out / "checkpoint.pt", state)
+        for k, out in enumerate(self.outs):
+            artifacts.write_csv(out / CURVE, header, self.rows[k])
+            state = {
+                "format": CHECKPOINT_FORMAT,
+                "identity": self.identity(k),
+                "agent": self.agent.state_dict(k),
+                "buffer": self.buffers[k].state_dict(),
+                "rng": {
+                    "env": self.env.rngs[k].bit_generator.state,
+                    "noise": self.noise_rngs[k].bit_generator.state,
+                    "sample": self.sample_rngs[k].bit_generator.state,
+                },
+                "rows": self.rows[k],
+                "transitions": self.transitions,
+                "pending_updates": self.pending_updates,
+                "wall": self.wall,
+                "updates": self.updates,
+                "update_seconds": self.update_seconds,
+                "validation": self.validation[k],
+                "best": self.best[k],
+            }
+            if self.rc.algo.select_every:
+                artifacts.write_csv(out / "validation.csv", ["episode", "coverage"], self.validation[k])
+            artifacts.torch_save(out / "checkpoint.pt", state)
 
     def load_checkpoint(self) -> None:
-        path = self.out / "checkpoint.pt"
-        state = artifacts.torch_load(path)
-        mine, theirs = self.identity(), state.get("identity", {})
-        diffs = sorted(k for k in mine if mine[k] != theirs.get(k))
-        if diffs:
-            raise CheckpointError(f"{path}: checkpoint does not match this run (differs in {', '.join(diffs)})")
-        try:
-            self.agent.load_state_dict(state["agent"])
-            self.buffer.load_state_dict(state["buffer"])
-            self.env.rng.bit_generator.state = state["rng"]["env"]
-            self.noise_rng.bit_generator.state = state["rng"]["noise"]
-            self.sample_rng.bit_generator.state = state["rng"]["sample"]
-            self.rows = [list(r) for r in state["rows"]]
-            self.transitions = int(state["transitions"])
-            self.pending_updates = float(state["pending_updates"])
-            self.wall = float(state["wall"])
-            self.updates = int(state["updates"])
-            self.update_seconds = float(state["update_seconds"])
-            self.validation = [list(r) for r in state["validation"]]
-            self.best = state["best"]
-        except (KeyError, RuntimeError, ValueError, TypeError) as exc:
-            raise CheckpointError(f"{path}: checkpoint is incomplete or mismatched ({exc})") from exc
+        """Continue every run from its folder's checkpoint; the runs of a stack must stand at the same point."""
+        states = []
+        for k, out in enumerate(self.outs):
+            path = out / "checkpoint.pt"
+            state = artifacts.torch_load(path)
+            mine, theirs = self.identity(k), state.get("identity", {})
+            diffs = sorted(key for key in mine if mine[key] != theirs.get(key))
+            if diffs:
+                raise CheckpointError(f"{path}: checkpoint does not match this run (differs in {', '.join(diffs)})")
+            states.append((path, state))
+        points = {(len(st.get("rows", ())), st.get("transitions"), st.get("updates")) for _, st in states}
+        if len(points) > 1:
+            raise CheckpointError(f"the checkpoints in {', '.join(map(str, self.outs))} stand at different points")
+        for k, (path, state) in enumerate(states):
+            try:
+                self.agent.load_state_dict(state["agent"], k)
+                self.buffers[k].load_state_dict(state["buffer"])
+                self.env.rngs[k].bit_generator.state = state["rng"]["env"]
+                self.noise_rngs[k].bit_generator.state = state["rng"]["noise"]
+                self.sample_rngs[k].bit_generator.state = state["rng"]["sample"]
+                self.rows[k] = [list(r) for r in state["rows"]]
+                self.validation[k] = [list(r) for r in state["validation"]]
+                self.best[k] = state["best"]
+                self.transitions, self.pending_updates = int(state["transitions"]), float(state["pending_updates"])
+                self.updates = int(state["updates"])
+                self.wall, self.update_seconds = float(state["wall"]), float(state["update_seconds"])
+            except (KeyError, RuntimeError, ValueError, TypeError) as exc:
+                raise CheckpointError(f"{path}: checkpoint is incomplete or mismatched ({exc})") from exc
 
     def save_actors(self) -> None:
-        """``actors.pt``: the kept actors (selected, or the last); with selection also ``actors_last.pt``."""
-        meta = {
-            "format": CHECKPOINT_FORMAT,
-            "identity": self.identity(),
-            "observation": self.rc.algo.observation,
-            "obs_dim": self.env.obs_dim,
-            "hidden": self.rc.algo.maddpg.hidden,
-        }
-        last = {**meta, "actor": self.agent.actor.state_dict(), "selected_episode": None}
-        if self.best is None:
-            artifacts.torch_save(self.out / "actors.pt", last)
-            return
-        artifacts.torch_save(self.out / "actors_last.pt", last)
-        kept = {**meta, "actor": self.best["actor"], "selected_episode": self.best["episode"]}
-        artifacts.torch_save(self.out / "actors.pt", kept)
+        """Each run's ``actors.pt``: its kept actors (selected, or the last); with selection also ``actors_last.pt``."""
+        for k, out in enumerate(self.outs):
+            meta = {
+                "format": CHECKPOINT_FORMAT,
+                "identity": self.identity(k),
+                "observation": self.rc.algo.observation,
+                "obs_dim": self.env.obs_dim,
+                "hidden": self.rc.algo.maddpg.hidden,
+            }
+            last = {**meta, "actor": self.agent.network_state("actor", k), "selected_episode": None}
+            if self.best[k] is None:
+                artifacts.torch_save(out / "actors.pt", last)
+                continue
+            artifacts.torch_save(out / "actors_last.pt", last)
+            kept = {**meta, "actor": self.best[k]["actor"], "selected_episode": self.best[k]["episode"]}
+            artifacts.torch_save(out / "actors.pt", kept)
+
+
+def train_runs(
+    rc: RunConfig,
+    region: Region,
+    episodes: int,
+    seeds: list[int],
+    outs: list[str | Path],
+    checkpoint_every: int = 1000,
+    resume: bool = False,
+    progress: bool = True,
+) -> list[dict]:
+    """Train one run per seed, all in this process (``Trainer``), into ``outs``; ``resume`` continues them from
+    their checkpoints, refusing mismatched ones."""
+    torch.set_num_threads(1)
+    trainer = Trainer(rc, region, episodes, list(seeds), [Path(o) for o in outs], checkpoint_every, progress)
+    if resume:
+        trainer.load_checkpoint()
+    else:
+        for out in trainer.outs:
+            if (out / "checkpoint.pt").exists():
+                raise CheckpointError(f"{out}: already holds a run; pass --resume to continue it or choose a new "
+                                      "folder")
+    return trainer.run()
 
 
 def train(
@@ -314,13 +373,7 @@ def train(
     progress: bool = True,
 ) -> dict:
     """Train one run into ``out`` (``resume`` continues from its checkpoint, refusing a mismatched one)."""
-    torch.set_num_threads(1)
-    trainer = Trainer(rc, region, episodes, seed, Path(out), checkpoint_every, progress)
-    if resume:
-        trainer.load_checkpoint()
-    elif (Path(out) / "checkpoint.pt").exists():
-        raise CheckpointError(f"{out}: already holds a run; pass --resume to continue it or choose a new folder")
-    return trainer.run()
+    return train_runs(rc, region, episodes, [seed], [out], checkpoint_every, resume, progress)[0]
 
 
 def load_actors(path: str | Path):
