@@ -99,14 +99,19 @@ def small_trainer(params, region, out, seed=0, episodes=20, config="tuned", meth
     return Trainer(dataclasses.replace(rc, algo=algo), region, episodes, seed, out, 10, progress=False)
 
 
-def test_run_writes_curve_checkpoint_actors(params, regions, tmp_path):
-    (summary,) = small_trainer(params, regions["square"], tmp_path / "run").run()
-    for name in (CURVE, "checkpoint.pt", "actors.pt", "run.json"):
-        assert (tmp_path / "run" / name).exists()
+def test_run_writes_curve_and_actors_and_drops_its_checkpoint(params, regions, tmp_path):
+    """A run checkpoints on its way (every 10 episodes here); finished, it keeps its curve, actors and summary and
+    deletes the checkpoint, which only an unfinished run needs."""
+    cut_at(small_trainer(params, regions["square"], tmp_path / "run"), 10)
+    assert (tmp_path / "run" / "checkpoint.pt").exists()
+    (summary,) = small_trainer(params, regions["square"], tmp_path / "whole").run()
+    for name in (CURVE, "actors.pt", "run.json"):
+        assert (tmp_path / "whole" / name).exists()
+    assert not (tmp_path / "whole" / "checkpoint.pt").exists()
     assert summary["status"] == "finished" and summary["transitions"] == 20 * 50
-    curve = evaluate.read_curve(tmp_path / "run" / CURVE)
+    curve = evaluate.read_curve(tmp_path / "whole" / CURVE)
     assert list(curve["episode"]) == list(range(20))
-    assert not list(tmp_path.glob("run/.*.tmp")), "no temporary file is left behind"
+    assert not list(tmp_path.glob("*/.*.tmp")), "no temporary file is left behind"
 
 
 def test_learning_rates_fall_linearly_to_lr_end(params, regions, tmp_path):
@@ -258,13 +263,14 @@ def test_a_stacked_run_resumes_alone_or_in_another_stack(params, regions, tmp_pa
     pair.run()
     for seed in (3, 5, 7):
         assert read_text(tmp_path / f"cut{seed}" / CURVE) == read_text(tmp_path / f"whole{seed}" / CURVE)
-    cut_at(trainer([9]), 30)
+    cut_at(trainer([9], "odd"), 30)
+    cut_at(trainer([3], "odd"), 20)
     with pytest.raises(CheckpointError, match="different points"):
-        trainer([9, 3]).load_checkpoint()  # seed 3's checkpoint is at 60
+        trainer([9, 3], "odd").load_checkpoint()
 
 
 def test_corrupt_and_mismatched_checkpoints_are_refused(params, regions, tmp_path):
-    small_trainer(params, regions["square"], tmp_path / "run").run()
+    cut_at(small_trainer(params, regions["square"], tmp_path / "run"), 10)
     with pytest.raises(CheckpointError, match="seed"):
         small_trainer(params, regions["square"], tmp_path / "run", seed=5).load_checkpoint()
     with pytest.raises(CheckpointError, match="region"):

@@ -43,8 +43,6 @@ def _train_cell(job: dict) -> list[dict]:
             fresh.append((seed, out))
     if fresh:
         summaries += train_runs(rc, region, episodes, *map(list, zip(*fresh)), every, progress=False)
-    for out in job["outs"]:
-        (Path(out) / "checkpoint.pt").unlink(missing_ok=True)  # the replay buffer is ~100 MB: not a pipeline output
     return sorted(summaries, key=lambda s: s["seed"])
 
 

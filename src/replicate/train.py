@@ -1,8 +1,8 @@
 """The training loop: E parallel environments, MADDPG updates, per-episode curve, resumable checkpoints.
 
 A run directory holds ``run.json`` (what was run), ``curve.csv.gz`` (one row per episode, gzip: 10,000 rows of
-15 columns are 1.2 MB as text and ~0.4 MB compressed), ``checkpoint.pt``
-(everything needed to continue: networks, optimisers, replay buffer, generator states, the curve so far) and,
+15 columns are 1.2 MB as text and ~0.4 MB compressed), while it trains ``checkpoint.pt`` (everything needed to
+continue: networks, optimisers, replay buffer, generator states, the curve so far; deleted at the end) and,
 at the end, ``actors.pt`` (the trained decentralised policies: the last ones, or with ``select_every`` the best on
 the run's fixed validation starts, whose coverage is logged in ``validation.csv``).
 """
@@ -224,7 +224,7 @@ class Trainer:
                 self.save_checkpoint()
         bar.close()
         self.wall = time.perf_counter() - t0
-        self.save_checkpoint()
+        self.save_curves()
         self.save_actors()
         summaries = []
         for k, out in enumerate(self.outs):
@@ -242,6 +242,7 @@ class Trainer:
                 summary["selected_episode"] = self.best[k]["episode"]
                 summary["selected_validation_coverage"] = self.best[k]["coverage"]
             artifacts.write_json(out / "run.json", summary)
+            (out / "checkpoint.pt").unlink(missing_ok=True)  # a finished run needs none (and it is 100-250 MB)
             summaries.append(summary)
         return summaries
 
@@ -262,10 +263,17 @@ class Trainer:
         return coverages
 
     # ---- persistence: one folder per run, in the same form whatever the stack -------------------------------
-    def save_checkpoint(self) -> None:
-        header = curve_header(self.env.n_agents)
+    def save_curves(self) -> None:
+        """Each run's curve so far and, when selecting, its validations."""
         for k, out in enumerate(self.outs):
-            artifacts.write_csv(out / CURVE, header, self.rows[k])
+            artifacts.write_csv(out / CURVE, curve_header(self.env.n_agents), self.rows[k])
+            if self.rc.algo.select_every:
+                artifacts.write_csv(out / "validation.csv", ["episode", "coverage"], self.validation[k])
+
+    def save_checkpoint(self) -> None:
+        """The curves, and each run's checkpoint: everything needed to continue it, alone or in any stack."""
+        self.save_curves()
+        for k, out in enumerate(self.outs):
             state = {
                 "format": CHECKPOINT_FORMAT,
                 "identity": self.identity(k),
@@ -285,8 +293,6 @@ class Trainer:
                 "validation": self.validation[k],
                 "best": self.best[k],
             }
-            if self.rc.algo.select_every:
-                artifacts.write_csv(out / "validation.csv", ["episode", "coverage"], self.validation[k])
             artifacts.torch_save(out / "checkpoint.pt", state)
 
     def load_checkpoint(self) -> None:
