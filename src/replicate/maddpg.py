@@ -227,7 +227,7 @@ def adam_step(opt: torch.optim.Adam, runs: int = 1) -> None:
     params = group["params"]
     for p in params:
         if p not in opt.state:  # the first step creates the state, as ``opt.step()`` does
-            opt.state[p] = {"step": torch.tensor(0.0), "exp_avg": torch.zeros_like(p),
+            opt.state[p] = {"step": torch.zeros((), device=p.device), "exp_avg": torch.zeros_like(p),
                             "exp_avg_sq": torch.zeros_like(p)}
     state = [opt.state[p] for p in params]
     steps = [s["step"] for s in state]
