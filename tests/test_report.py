@@ -6,7 +6,7 @@ import json
 
 from replicate import metrics
 from replicate.evaluate import split_ablation
-from replicate.report import claims, targets, write_report
+from replicate.report import claims, span, targets, write_report
 
 
 def group(per_seed, nn=0.8, conv=(5000, 5000, 5000)):
@@ -52,6 +52,11 @@ def test_targets_name_the_missed_bar(params):
     assert rows["square"][-1] == "met"
     assert rows["rectangle"][-1].startswith("missed (coverage: worst seed 0.690, 0.010 short")
     assert "time: 200 s > 180 s" in rows["bedok"][-1] and "coverage" not in rows["bedok"][-1]
+    assert rows["square"][4] == "170"  # one run's time, or one stack's runs sharing it, is one number
+
+
+def test_span_of_seconds():
+    assert span([]) == "—" and span([63.2, 62.9]) == "63" and span([118.0, 133.4]) == "118-133"
 
 
 def test_claims_and_report_text(params, tmp_path):

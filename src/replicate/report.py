@@ -25,6 +25,14 @@ def fmt(ci: dict) -> str:
     return f"{ci['mean']:.3f} [{ci['lo']:.3f}, {ci['hi']:.3f}]"
 
 
+def span(values: list[float]) -> str:
+    """'lo-hi' of seconds, one number when they agree, a dash when there are none."""
+    if not values:
+        return "—"
+    lo, hi = f"{min(values):.0f}", f"{max(values):.0f}"
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
 def verdict(flags: list[bool]) -> str:
     if flags and all(flags):
         return "reproduced"
@@ -113,7 +121,7 @@ def targets(summary: dict, timing: dict, config: str = "tuned", method: str = "c
             misses.append(f"naive: worst seed {min(seeds):.3f} ≤ {naive:.3f}")
         if walls and max(walls) > TARGET_SECONDS:
             misses.append(f"time: {max(walls):.0f} s > {TARGET_SECONDS:.0f} s")
-        rows.append((region, text, seeds, naive, f"{min(walls):.0f}-{max(walls):.0f}" if walls else "—",
+        rows.append((region, text, seeds, naive, span(walls),
                      "met" if not misses else "missed (" + "; ".join(misses) + ")"))
     return rows
 
