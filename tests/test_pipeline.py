@@ -83,8 +83,9 @@ def test_committed_outputs_are_up_to_date():
 
 def test_cost_estimate_orders_the_cells_like_the_committed_runs(params):
     """The estimate that starts the costliest cells first is within a factor of 2 of one core's time for every
-    committed 10,000-episode run, so the longest cells do start first."""
-    runs = json.loads((ROOT / "runs" / "summary.json").read_text())["runs"]
+    committed 10,000-episode run trained in a stack of seeds, as the pipeline trains them, so the longest cells do
+    start first."""
+    runs = [r for r in json.loads((ROOT / "runs" / "summary.json").read_text())["runs"] if r["runs_in_process"] > 1]
     assert len(runs) > 10
     for r in runs:
         estimate = run_cost(run_config(params, r["config"], r["method"], r["region"]), params.train.episodes)

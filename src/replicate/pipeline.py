@@ -48,12 +48,13 @@ def _train_cell(job: dict) -> list[dict]:
 
 def run_cost(rc, episodes: int) -> float:
     """A rough estimate of one run's training seconds on this machine, only to start the longest cells first:
-    ~60 µs of environment per transition, and per update 3.2 ms + 23 µs per minibatch row (``tuned`` at 128 and
-    ``paper`` at 1024 measured 6.2 and 27 ms in session 8's pipeline)."""
+    per run of a stack of seeds (as ``_train_cell`` trains them), ~40 µs of environment per transition and per
+    update 0.66 ms + 18.3 µs per minibatch row (``tuned`` at 128 and ``paper`` at 1024 took ~3.0 and ~19 ms per
+    run in session 9's pipeline)."""
     cfg = rc.algo.maddpg
     transitions = episodes * rc.world.episode_length
     updates = max(transitions - cfg.learning_starts, 0) / cfg.update_every
-    return 60e-6 * transitions + updates * (3.2e-3 + 23e-6 * cfg.batch_size)
+    return 40e-6 * transitions + updates * (0.66e-3 + 18.3e-6 * cfg.batch_size)
 
 
 def ablation_cells(params) -> list[tuple[str, str, str]]:
