@@ -8,8 +8,8 @@
    10,000-episode run (issue 4's budget for `tuned`: 180 s on one core), for a run alone and per run of the seeds
    stacked in one process (as the pipeline trains them), with the ratio. From the stacked figures, the projected
    `train` stage of the pipeline (every run of params.yaml's matrix and ablation, two processes at a time), and
-   the same with every
-   update at its matmul floor: how far issue 3's 45 minutes for the whole `dvc repro` is on this machine.
+   the same with every update at its matmul floor: how far issue 3's 45 minutes for the whole `dvc repro` is on
+   this machine.
 2. One update of all 9 agents, per configuration: the batched MADDPG (hand-written gradients) against the same
    batched update through autograd (as in sessions 1-5) and the per-agent loop (``maddpg_loop``), as ratios.
 3. Environment throughput (agent-steps per second, random actions) against PettingZoo MPE2 ``simple_spread_v3``

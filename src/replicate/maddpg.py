@@ -382,14 +382,17 @@ class MADDPG:
         }
 
     # ---- one run's part of the stack, for its checkpoint -----------------------------------------------------
+    def _rows(self, run: int) -> slice:
+        """Run ``run``'s rows of every stacked tensor: its N agents."""
+        return slice(run * self.n, (run + 1) * self.n)
+
     def network_state(self, name: str, run: int = 0) -> dict:
         """Run ``run``'s part of one network (``NETWORKS``), as a one-run MADDPG's ``state_dict`` holds it."""
-        rows = slice(run * self.n, (run + 1) * self.n)
-        return {p: t[rows].clone() for p, t in getattr(self, name).state_dict().items()}
+        return {p: t[self._rows(run)].clone() for p, t in getattr(self, name).state_dict().items()}
 
     def state_dict(self, run: int = 0) -> dict:
         """Run ``run``'s networks and Adam states, shaped as a one-run MADDPG's."""
-        rows = slice(run * self.n, (run + 1) * self.n)
+        rows = self._rows(run)
         state = {k: self.network_state(k, run) for k in NETWORKS}
         for k in OPTIMISERS:
             full = getattr(self, k).state_dict()
@@ -401,7 +404,7 @@ class MADDPG:
     def load_state_dict(self, state: dict, run: int = 0) -> None:
         """Write a one-run state (``state_dict``) into run ``run``'s part of the stack. Every run of a stack is
         loaded before it trains on: their Adam steps must agree."""
-        rows = slice(run * self.n, (run + 1) * self.n)
+        rows = self._rows(run)
         with torch.no_grad():
             for k in NETWORKS:
                 net, theirs = getattr(self, k), state[k]

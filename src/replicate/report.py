@@ -192,9 +192,9 @@ def write_report(summary_path: str, timing_path: str, figures: list[str], out: s
         runs = timing["runs"]
         cores = [r["core_seconds"] for r in runs]
         kept = sum(r["skipped"] for r in runs)
-        lines.append(f"Training: {len(runs)} runs, {sum(cores):.0f} s of one core's time in all ({min(cores):.0f}-"
-                     f"{max(cores):.0f} s per run; a cell's seeds train together in one process, and a run counts "
-                     f"its share of that process's wall time); the last `train` stage took "
+        lines.append(f"Training: {len(runs)} runs, {sum(cores):.0f} s of one core's time in all ({span(cores)} s "
+                     "per run; a cell's seeds train together in one process, and a run counts its share of that "
+                     f"process's wall time); the last `train` stage took "
                      f"{timing['wall_seconds']:.0f} s wall and kept {kept} runs already finished with identical "
                      "settings.")
     for stage, seconds in stage_times.items():
