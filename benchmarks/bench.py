@@ -37,9 +37,10 @@ from replicate.maddpg import MADDPG, ReplayBuffer, clip_grad_per_agent, soft_upd
 from replicate.maddpg_loop import LoopMADDPG
 from replicate.pipeline import matrix_cells
 from replicate.regions import make_region
-from replicate.train import Trainer
+from replicate.train import Trainer, hold_freed_memory
 
 torch.set_num_threads(1)
+hold_freed_memory()  # as the pipeline's training processes do (section 4 measures it)
 
 
 def best_of(fn, repeats=5):

@@ -39,8 +39,8 @@ class SwarmPolicy(nn.Module):
         x = x.transpose(0, 1)  # [N, B, obs_dim]
         x = torch.relu(torch.baddbmm(self.b0, x, self.w0))
         x = torch.relu(torch.baddbmm(self.b1, x, self.w1))
-        # the 64 → 2 layer transposed, as the training actor computes it (maddpg.stacked_matmul): same bits
-        a = torch.tanh(torch.bmm(self.w2.mT, x.mT).mT + self.b2).transpose(0, 1)
+        # the 64 → 2 layer as the training actor computes it (maddpg.stacked_matmul): same bits
+        a = torch.tanh(torch.bmm(x, self.w2) + self.b2).transpose(0, 1)
         return a.squeeze(0) if squeeze else a
 
 

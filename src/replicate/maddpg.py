@@ -35,13 +35,15 @@ from .config import MADDPGConfig
 def stacked_matmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """a @ b for stacks of matrices, [N, M, K] × [N, K, P] → [N, M, P], in the form the CPU BLAS runs fastest.
 
-    ``bmm`` is slow on skinny shapes: ten times slower than needed for a 64 → 1 layer and its gradients
-    (``make bench`` section 0 times them). An inner size of 1 is an outer product, a broadcast multiply; a
-    narrow output (P < 16) is computed transposed, (bᵀ aᵀ)ᵀ, where the wide dimension becomes the output's rows.
+    ``bmm`` is slow on some skinny shapes (``make bench`` section 0 times them). An inner size of 1 is an outer
+    product, a broadcast multiply. A narrow output (P < 16) of a transposed ``a`` (a weight gradient xᵀd of a 64 → 1
+    or 64 → 2 layer) is computed as (bᵀ aᵀ)ᵀ, where aᵀ is the stored tensor and the wide dimension becomes the
+    output's rows: 2-3x faster than ``bmm`` on the transposed view. With a stored ``a`` (a forward pass), plain
+    ``bmm`` is the faster form of a narrow output (1.5-2x, session 11; TRAINING_VERSION 3).
     """
     if b.shape[1] == 1:
         return a * b
-    if b.shape[2] < 16:
+    if b.shape[2] < 16 and not a.is_contiguous():
         return torch.bmm(b.mT, a.mT).mT
     return torch.bmm(a, b)
 
@@ -347,14 +349,15 @@ class MADDPG:
             return t.transpose(1, 2).reshape(s * n, bsz, *t.shape[3:])
 
         r = per_agent(rew) if self.reward_mode == "individual" else each_critic(rew.mean(dim=2))  # [S·N, B]
-        x = each_critic(obs.reshape(s, bsz, -1))  # every critic sees all observations of its run
+
+        def joint_input(o, a):  # critic input [x, a_1..a_N], [S, B, N, ·] twice → [S·N, B, N·(od + ad)]
+            return each_critic(torch.cat([o.reshape(s, bsz, -1), a.reshape(s, bsz, -1)], dim=-1))
 
         # Critic: y_i = r_i + γ Q'_i(x', μ'_1(o'_1), …, μ'_N(o'_N))   (paper eq. y; no terminal states; an m-step
         # transition holds r_i = Σ_k γᵏ r_i,t+k and disc = γᵐ, Sutton & Barto §7.1)
         next_act = torch.tanh(self.actor_target(per_agent(next_obs))).view(s, n, bsz, -1).transpose(1, 2)
-        x_next = torch.cat([next_obs.reshape(s, bsz, -1), next_act.reshape(s, bsz, -1)], dim=-1)
-        y = r + each_critic(disc) * self.critic_target(each_critic(x_next)).squeeze(-1)
-        q, saved = self.critic.forward_saving(torch.cat([x, each_critic(act.reshape(s, bsz, -1))], dim=-1))
+        y = r + each_critic(disc) * self.critic_target(joint_input(next_obs, next_act)).squeeze(-1)
+        q, saved = self.critic.forward_saving(joint_input(obs, act))
         td = q.squeeze(-1) - y  # [S·N, B]
         self.critic.backward(saved, (2.0 / bsz) * td.unsqueeze(-1))  # ∂L/∂Q_i = 2(Q_i − y_i)/B
         clip_grad_per_agent(self.params["critic"], cfg.grad_clip)
@@ -363,9 +366,10 @@ class MADDPG:
         # Actor: ∇θ_i J = E[∇θ_i μ_i(o_i) ∇a_i Q_i(x, a_1, …, μ_i(o_i), …, a_N)] + 1e-3·mean(pre-tanh²)
         pre, actor_saved = self.actor.forward_saving(per_agent(obs))  # [S·N, B, ad]
         mu = torch.tanh(pre)
-        joint = act.unsqueeze(1).repeat(1, n, 1, 1, 1)  # [S, N, B, N, ad]: critic i sees the batch's actions ...
-        joint[:, self.agents, :, self.agents] = mu.view(s, n, bsz, -1).transpose(0, 1)  # ... but its own, μ_i(o_i)
-        q_pi, saved = self.critic.forward_saving(torch.cat([x, joint.view(s * n, bsz, -1)], dim=-1))
+        joint = saved[0].clone()  # critic i sees the batch's observations and actions ...
+        actions = joint.view(s, n, bsz, -1)[..., n * self.obs_dim:].view(s, n, bsz, n, -1)  # [S, N, B, N, ad]
+        actions[:, self.agents, :, self.agents] = mu.view(s, n, bsz, -1).transpose(0, 1)  # ... but its own, μ_i(o_i)
+        q_pi, saved = self.critic.forward_saving(joint)
         d_z1 = self.critic.backward(saved, torch.full_like(q_pi, -1.0 / bsz), weight_grads=False)  # −mean Q_i
         d_mu = stacked_matmul(d_z1, self.critic.weights[0][self.stacked, self.own_action_rows].mT)
         d_pre = d_mu * (1.0 - mu * mu) + (2.0 * cfg.actor_reg / pre[0].numel()) * pre  # through tanh; + reg
