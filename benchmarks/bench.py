@@ -14,8 +14,12 @@
    batched update through autograd (as in sessions 1-5) and the per-agent loop (``maddpg_loop``), as ratios.
 3. Environment throughput (agent-steps per second, random actions) against PettingZoo MPE2 ``simple_spread_v3``
    with N = 9 and continuous actions, as a ratio.
+4. The allocator setting of the training processes (``train.hold_freed_memory``): ``paper``'s CR-MARL stack of
+   seeds trained in fresh processes with glibc's default allocator against the held one, one process alone and
+   two side by side (as the pipeline runs them); time per update, page faults, and the ratios.
 
-Everything runs on one thread (``torch.set_num_threads(1)``), the budget of one core of the 2-core machine.
+Everything runs on one thread (``torch.set_num_threads(1)``), the budget of one core of the 2-core machine, and
+sections 0-3 with the allocator setting of the pipeline's training processes.
 ``--full`` also trains the real 10,000-episode paper CR run on the square and prints its wall time.
 """
 
@@ -40,7 +44,6 @@ from replicate.regions import make_region
 from replicate.train import Trainer, hold_freed_memory
 
 torch.set_num_threads(1)
-hold_freed_memory()  # as the pipeline's training processes do (section 4 measures it)
 
 
 def best_of(fn, repeats=5):
@@ -256,11 +259,50 @@ def mpe2_throughput(seconds=3.0):
     return steps * 9 / (time.perf_counter() - t)
 
 
+def allocator_probe(allocator: str, episodes: int) -> None:
+    """One timed training in this fresh process (section 4), printed as JSON: ``paper`` CR-MARL, 3 seeds stacked,
+    with glibc's ``default`` allocator or the ``held`` one."""
+    import json
+    import resource
+
+    if allocator == "held":
+        hold_freed_memory()
+    params = load_params("params.yaml")
+    square = make_region("square", params.regions["square"], params.world.region_area)
+    before = resource.getrusage(resource.RUSAGE_SELF)
+    _, per_update, _, _ = training_split(params, square, "paper", "cr", episodes, runs=len(params.train.seeds))
+    after = resource.getrusage(resource.RUSAGE_SELF)
+    print(json.dumps({"per_update": per_update, "faults": after.ru_minflt - before.ru_minflt,
+                      "system_seconds": after.ru_stime - before.ru_stime}))
+
+
+def allocator_comparison(episodes: int) -> dict[tuple[str, int], dict]:
+    """{(allocator, processes side by side): the first process's probe} for both allocators, 1 and 2 processes."""
+    import json
+    import subprocess
+
+    out = {}
+    for side_by_side in (1, 2):
+        for allocator in ("default", "held"):
+            cmd = [sys.executable, __file__, "--allocator-probe", allocator, "--episodes", str(episodes)]
+            procs = [subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True) for _ in range(side_by_side)]
+            outputs = [p.communicate()[0] for p in procs]
+            if any(p.returncode for p in procs):
+                raise RuntimeError(f"allocator probe failed: {' '.join(cmd)}")
+            out[(allocator, side_by_side)] = json.loads(outputs[0].strip().splitlines()[-1])
+    return out
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--episodes", type=int, default=1000, help="episodes of the timed training runs")
     parser.add_argument("--full", action="store_true", help="also train the full 10,000-episode CR run")
+    parser.add_argument("--allocator-probe", choices=("default", "held"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.allocator_probe:
+        allocator_probe(args.allocator_probe, args.episodes)
+        return 0
+    hold_freed_memory()  # as the pipeline's training processes (section 4 measures it)
     params = load_params("params.yaml")
     square = make_region("square", params.regions["square"], params.world.region_area)
 
@@ -314,6 +356,16 @@ def main(argv=None) -> int:
         ours = env_throughput(params, square, n_envs)
         print(f"coverage env (CR reward, E={n_envs:3d}): {ours:10.0f}; MPE2 simple_spread_v3 (N=9, continuous): "
               f"{ref:10.0f}; ratio {ours / ref:.2f}")
+
+    print("== 4. allocator of the training processes: paper CR-MARL, 3 seeds stacked, fresh processes ==")
+    probes = allocator_comparison(args.episodes)
+    for side_by_side in (1, 2):
+        default, held = probes[("default", side_by_side)], probes[("held", side_by_side)]
+        where = "alone" if side_by_side == 1 else "two processes side by side"
+        print(f"{where}: glibc default {default['per_update'] * 1e3:.1f} ms per update ({default['faults']:,} page "
+              f"faults, {default['system_seconds']:.1f} s in the kernel); held (train.hold_freed_memory) "
+              f"{held['per_update'] * 1e3:.1f} ms ({held['faults']:,} faults, {held['system_seconds']:.1f} s); "
+              f"ratio {held['per_update'] / default['per_update']:.2f}")
 
     if args.full:
         print("== full run: paper CR-MARL, square, 10,000 episodes ==")

@@ -99,6 +99,7 @@ def test_dvc_repro_end_to_end(tmp_path):
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params["train"].update(episodes=50, seeds=[0, 1], checkpoint_every=50)
     params["pipeline"]["configs"] = ["paper", "tuned"]
+    params["pipeline"]["ablation"] = True  # the experiment `dvc exp run -S pipeline.ablation=true`, here in one go
     params["configs"]["tuned"]["select_every"] = 25  # so the checkpoint_selection ablation has last actors
     params["evaluate"].update(episodes=4)
     params["evaluate"]["lloyd"]["converged_steps"] = 60

@@ -70,3 +70,12 @@ def test_claims_and_report_text(params, tmp_path):
     assert "## Ablation of `tuned`" in text and "| `update_schedule` |" in text
     assert "| naive | square | 50 | 0.500 |" in text  # the baseline table gives each baseline's T
     assert (tmp_path / "R.md").read_text() == text
+
+
+def test_report_without_ablation_runs_says_how_to_run_them(params, tmp_path):
+    s = summary(params)
+    s["runs"] = {k: v for k, v in s["runs"].items() if "-without-" not in k}
+    (tmp_path / "summary.json").write_text(json.dumps(split_ablation(s, params)))
+    text = write_report(str(tmp_path / "summary.json"), str(tmp_path / "none.json"), [], str(tmp_path / "R.md"), {})
+    section = text.split("## Ablation of `tuned`")[1].split("\n## ")[0]
+    assert "dvc exp run -S pipeline.ablation=true" in section and "| `geofence` |" not in section

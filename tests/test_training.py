@@ -366,3 +366,17 @@ def test_baselines_order_on_square(params, regions):
     assert rect["steps"] == params.regions["rectangle"].episode_length == 100  # the region's own T
     cells = baselines.voronoi_centroids(square.polygon, np.array([[-1.0, 0.0], [1.0, 0.0]]))
     np.testing.assert_allclose(cells, [[-0.75, 0.0], [0.75, 0.0]], atol=1e-9)
+
+
+def test_voronoi_centroids_of_many_environments_are_each_environments_own(regions):
+    """The batched Lloyd targets [E, N, 2] equal each environment's alone, bit for bit, also for agents far
+    outside the region; agents at one point (no Voronoi diagram) head for the region's nearest point."""
+    rng = np.random.default_rng(3)
+    for region in (regions["square"].polygon, regions["bedok"].polygon):
+        xy = rng.uniform(-3, 3, (12, 9, 2))
+        xy[4] = 8.0 + 0.01 * rng.normal(size=(9, 2))  # the whole swarm far outside
+        xy[7, 2] = xy[7, 5]  # two agents at one point
+        batched = baselines.voronoi_centroids(region, xy)
+        assert np.array_equal(batched, np.stack([baselines.voronoi_centroids(region, p) for p in xy]))
+        assert np.array_equal(batched[7], baselines.nearest_in(region, xy[7]))
+        assert np.isfinite(batched).all()

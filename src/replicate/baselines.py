@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 import shapely
-from shapely.geometry import MultiPoint, Polygon
+from shapely.geometry import Polygon
 
 from .config import LloydConfig, NaiveConfig
 from .env import CoverageEnv
@@ -63,32 +63,48 @@ def naive_swarming(cfg: NaiveConfig) -> Policy:
 
 def voronoi_centroids(region: Polygon, xy: np.ndarray) -> np.ndarray:
     """Centroid of each agent's Voronoi cell clipped to the region (nearest region point if the cell misses
-    it). xy [N, 2] → [N, 2]."""
-    n = len(xy)
+    it). xy [N, 2] or, for E environments at once, [E, N, 2] → the same shape.
+
+    Each environment's diagram is its own (its frame is padded by its own agents' reach); GEOS runs once for all
+    environments' diagrams, once for all clippings and once for all centroids (a Python loop over environments
+    cost as much as GEOS). An environment whose agents coincide has no proper diagram: its agents head for the
+    region's nearest point."""
+    xy = np.asarray(xy, dtype=float)
+    batch = xy[None] if xy.ndim == 2 else xy
+    e, n = batch.shape[:2]
     if n == 1:
-        cells = np.array([region])
+        cells, proper = np.full(e, region, dtype=object), np.ones(e, bool)
     else:
+        same = (batch[:, :, None] == batch[:, None]).all(axis=-1)  # [E, N, N]
+        proper = ~(same.sum(axis=(1, 2)) > n)  # no two agents at one point (GEOS refuses such a diagram)
         minx, miny, maxx, maxy = region.bounds
-        pad = max(maxx - minx, maxy - miny) + np.abs(xy).max()
-        frame = shapely.box(minx - pad, miny - pad, maxx + pad, maxy + pad)
-        cells = shapely.get_parts(shapely.voronoi_polygons(MultiPoint(xy), extend_to=frame, ordered=True))
-    if len(cells) != n:  # coincident agents: no proper diagram, head for the region's nearest point
-        return nearest_in(region, xy)
-    clipped = shapely.intersection(cells, region)
-    target = shapely.get_coordinates(shapely.centroid(clipped), include_z=False)
+        pad = max(maxx - minx, maxy - miny) + np.abs(batch[proper]).max(axis=(1, 2))  # [E']
+        frames = shapely.box(minx - pad, miny - pad, maxx + pad, maxy + pad)
+        diagrams = shapely.voronoi_polygons(shapely.multipoints(batch[proper]), extend_to=frames, ordered=True)
+        parts, owner = shapely.get_parts(diagrams, return_index=True)
+        whole = np.bincount(owner, minlength=len(diagrams)) == n  # a diagram with a cell per agent
+        proper[proper] = whole
+        cells = parts[whole[owner]]  # the proper environments' cells, n each, in agent order
+    clipped = shapely.intersection(cells, region).reshape(-1, n)  # [E', N]
+    coords, which = shapely.get_coordinates(shapely.centroid(clipped).ravel(), return_index=True)
+    target = np.full((*clipped.shape, 2), np.nan)  # [E', N, 2], NaN where a cell has no centroid
+    target.reshape(-1, 2)[which] = coords
     empty = shapely.is_empty(clipped)
-    out = np.empty((n, 2))
-    out[~empty] = target if len(target) == (~empty).sum() else nearest_in(region, xy[~empty])
-    if empty.any():
-        out[empty] = nearest_in(region, xy[empty])
-    return out
+    no_centroid = (np.isnan(target).any(axis=-1) & ~empty).any(axis=1, keepdims=True)  # degenerate clipping
+    out = np.empty((e, n, 2))
+    out[proper] = target
+    nearest = np.ones((e, n), bool)
+    nearest[proper] = empty | no_centroid
+    if nearest.any():
+        out[nearest] = nearest_in(region, batch[nearest])
+    return out[0] if xy.ndim == 2 else out
 
 
 def lloyd(cfg: LloydConfig) -> Policy:
     """Steer toward the clipped Voronoi centroid: a = gain·(c − p) − damping·v, clipped to [-1, 1]."""
 
     def policy(env: CoverageEnv) -> np.ndarray:
-        target = np.stack([voronoi_centroids(env.region.polygon, p) for p in env.pos])
+        target = voronoi_centroids(env.region.polygon, env.pos)
         return np.clip(cfg.gain * (target - env.pos) - cfg.damping * env.vel, -1.0, 1.0)
 
     return policy

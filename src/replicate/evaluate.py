@@ -188,10 +188,11 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
         jobs.append({"params": params_path, "run": str(run), "region": ident["region"],
                      "out": str(metrics_dir / "runs" / f"{run.name}.json")})
         jobs += selection_ablation_jobs(params_path, params, run, ident, metrics_dir)
-    for region in regions:
-        for name in BASELINES:
-            jobs.append({"params": params_path, "baseline": name, "region": region,
-                         "out": str(metrics_dir / "baselines" / f"{name}-{region}.json")})
+    # the baselines first: the converged Lloyd layouts (500 steps of 100 episodes) are the longest jobs, and
+    # started last they kept one process busy while the other idled
+    jobs = [{"params": params_path, "baseline": name, "region": region,
+             "out": str(metrics_dir / "baselines" / f"{name}-{region}.json")}
+            for name in reversed(BASELINES) for region in regions] + jobs  # BASELINES ends with the costliest
     with ProcessPoolExecutor(max_workers=workers) as pool:
         results = dict(pool.map(_evaluate_one, jobs))
     summary = summarise_metrics(results.values())

@@ -171,6 +171,10 @@ def write_report(summary_path: str, timing_path: str, figures: list[str], out: s
                   "of its own: it evaluates the last actors of the `tuned` runs themselves.", "",
                   "| change | keys | region | with (95 % CI) | without (95 % CI) | Δ | with, per seed | "
                   "without, per seed |", "|---|---|---|---|---|---|---|---|", *ab, ""]
+    else:
+        lines += ["## Ablation of `tuned` (leave one out)", "",
+                  "No ablation runs in `runs/`: they are an experiment on top of the pipeline, "
+                  "`dvc exp run -S pipeline.ablation=true` trains and reports them.", ""]
     lines += ["## Coverage", "", "| config | method | region | seeds | coverage (95 % CI) | per seed | "
               "nearest neighbour (m) | fraction inside | convergence episode |",
               "|---|---|---|---|---|---|---|---|---|"]
