@@ -76,7 +76,7 @@ def voronoi_centroids(region: Polygon, xy: np.ndarray) -> np.ndarray:
         cells, proper = np.full(e, region, dtype=object), np.ones(e, bool)
     else:
         same = (batch[:, :, None] == batch[:, None]).all(axis=-1)  # [E, N, N]
-        proper = ~(same.sum(axis=(1, 2)) > n)  # no two agents at one point (GEOS refuses such a diagram)
+        proper = same.sum(axis=(1, 2)) == n  # no two agents at one point (GEOS refuses such a diagram)
         minx, miny, maxx, maxy = region.bounds
         pad = max(maxx - minx, maxy - miny) + np.abs(batch[proper]).max(axis=(1, 2))  # [E']
         frames = shapely.box(minx - pad, miny - pad, maxx + pad, maxy + pad)

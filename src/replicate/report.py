@@ -164,16 +164,15 @@ def write_report(summary_path: str, timing_path: str, figures: list[str], out: s
             lines.append(f"| {region} | {text} | {seeds} | {naive:.3f} | {wall} | **{v}** |")
         lines.append("")
     ab = ablation_rows(summary)
+    lines += ["## Ablation of `tuned` (leave one out)", ""]
     if ab:
-        lines += ["## Ablation of `tuned` (leave one out)", "",
-                  "Each row trains `tuned` with one change reverted to the `paper` value (`params.yaml` "
+        lines += ["Each row trains `tuned` with one change reverted to the `paper` value (`params.yaml` "
                   "`ablation`), same seeds and episodes; Δ = with − without. `checkpoint_selection` needs no run "
                   "of its own: it evaluates the last actors of the `tuned` runs themselves.", "",
                   "| change | keys | region | with (95 % CI) | without (95 % CI) | Δ | with, per seed | "
                   "without, per seed |", "|---|---|---|---|---|---|---|---|", *ab, ""]
     else:
-        lines += ["## Ablation of `tuned` (leave one out)", "",
-                  "No ablation runs in `runs/`: they are an experiment on top of the pipeline, "
+        lines += ["No ablation runs in `runs/`: they are an experiment on top of the pipeline, "
                   "`dvc exp run -S pipeline.ablation=true` trains and reports them.", ""]
     lines += ["## Coverage", "", "| config | method | region | seeds | coverage (95 % CI) | per seed | "
               "nearest neighbour (m) | fraction inside | convergence episode |",

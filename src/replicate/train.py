@@ -350,9 +350,9 @@ def hold_freed_memory() -> bool:
 
     An update allocates and frees dozens of tensors of 0.1-7 MB. By default glibc maps a block above its mmap
     threshold freshly from the kernel and unmaps it when freed, and trims the heap's top as soon as 128 KB are free
-    there, so every new tensor page-faults its memory in again: ~1 million faults per 1,000 episodes of ``paper``,
-    in a virtual machine two training processes slow each other down through them, and ``paper``'s update ran
-    ~1.2x slower alone and ~1.5x slower beside a second process (``make bench`` section 4). Blocks up to 32 MB now
+    there, so every new tensor page-faults its memory in again: ~1.7 million faults per 1,000 episodes of a
+    ``paper`` stack, and its update ran ~1.2x slower, alone or beside a second ``paper`` process (``make bench``
+    section 4; a probe beside a ``tuned`` process measured 1.5x). Blocks up to 32 MB now
     come from the heap, which keeps up to 512 MB free and grows 64 MB at a time. The arithmetic is untouched.
     → whether the allocator took the settings (False where it is not glibc's)."""
     import ctypes
