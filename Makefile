@@ -7,7 +7,7 @@ export DVC_NO_ANALYTICS := 1
 export PYTHONHASHSEED := 0
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)   # papermill and dvc of the venv, for the pipeline's stages
 
-.PHONY: setup test repro bench reference lint clean-venv
+.PHONY: setup test test-fast repro bench reference lint clean-venv
 
 $(STAMP): environment.lock pyproject.toml
 	rm -rf $(VENV)
@@ -19,8 +19,13 @@ $(STAMP): environment.lock pyproject.toml
 
 setup: $(STAMP)
 
+# The full suite (CI runs it); `make test-fast` leaves out the tests marked slow (the pipeline end to end,
+# trainings of a minute or more), for local work.
 test: $(STAMP)
 	$(VENV)/bin/pytest
+
+test-fast: $(STAMP)
+	$(VENV)/bin/pytest -m "not slow"
 
 repro: $(STAMP)
 	$(VENV)/bin/dvc repro

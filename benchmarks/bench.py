@@ -5,13 +5,13 @@
    copies, optimiser), so run times measured on different machines and the room left for speed-ups can be read.
 1. Time per 1,000 episodes of the paper and tuned configurations (CR-MARL and SW-MARL, square), split into
    environment + geometry + acting (+ validation) and MADDPG updates, and the projected wall time of a full
-   10,000-episode run (issue 4's budget for `tuned`: 180 s on one core), for a run alone and per run of the seeds
+   10,000-episode run (the budget `tuned` was designed for: 180 s on one core), for a run alone and per run of the seeds
    stacked in one process (as the pipeline trains them), with the ratio. From the stacked figures, the projected
    `train` stage of the pipeline (every run of params.yaml's matrix and ablation, two processes at a time), and
-   the same with every update at its matmul floor: how far issue 3's 45 minutes for the whole `dvc repro` is on
-   this machine.
+   the same with every update at its matmul floor: how far a 45-minute budget for the whole `dvc repro`
+   is on this machine.
 2. One update of all 9 agents, per configuration: the batched MADDPG (hand-written gradients) against the same
-   batched update through autograd (as in sessions 1-5) and the per-agent loop (``maddpg_loop``), as ratios.
+   batched update through autograd (the update before its gradients were written out) and the per-agent loop (``maddpg_loop``), as ratios.
 3. Environment throughput (agent-steps per second, random actions) against PettingZoo MPE2 ``simple_spread_v3``
    with N = 9 and continuous actions, as a ratio.
 4. The allocator setting of the training processes (``train.hold_freed_memory``): ``paper``'s CR-MARL stack of
@@ -39,7 +39,7 @@ from replicate.env import CoverageEnv
 from replicate.export import OBS_LAYOUT
 from replicate.maddpg import MADDPG, ReplayBuffer, clip_grad_per_agent, soft_update
 from replicate.maddpg_loop import LoopMADDPG
-from replicate.pipeline import matrix_cells
+from replicate.pipeline import cell_seeds, matrix_cells
 from replicate.regions import make_region
 from replicate.train import Trainer, hold_freed_memory
 
@@ -94,10 +94,11 @@ def train_stage_projection(params, splits, floors, workers: int = 2) -> tuple[in
         per_update = splits[(family, method)][1]
         updates = (params.train.episodes * rc.world.episode_length - cfg.learning_starts) / cfg.update_every
         env = env_s * params.train.episodes / 1000 * rc.world.episode_length / params.world.episode_length
-        total += env + updates * per_update
-        floor += env + updates * floors[family]
-    runs = len(cells) * len(params.train.seeds)
-    return runs, total * len(params.train.seeds) / workers, floor * len(params.train.seeds) / workers
+        seeds = len(cell_seeds(params, config))
+        total += seeds * (env + updates * per_update)
+        floor += seeds * (env + updates * floors[family])
+    runs = sum(len(cell_seeds(params, config)) for config, _, _ in cells)
+    return runs, total / workers, floor / workers
 
 
 def machine_gemm_gflops(seconds=1.0) -> float:
@@ -174,7 +175,7 @@ def update_breakdown(params, config: str, updates: int = 5) -> dict[str, tuple[f
 
 
 class AutogradMADDPG(MADDPG):
-    """The batched update as it was before the gradients were written out (sessions 1-5): the same losses,
+    """The batched update as it was before the gradients were written out (training version 1): the same losses,
     differentiated by autograd, with ``baddbmm`` in every layer. The reference for the hand-written update."""
 
     def update(self, batch):
@@ -270,7 +271,7 @@ def allocator_probe(allocator: str, episodes: int) -> None:
     params = load_params("params.yaml")
     square = make_region("square", params.regions["square"], params.world.region_area)
     before = resource.getrusage(resource.RUSAGE_SELF)
-    _, per_update, _, _ = training_split(params, square, "paper", "cr", episodes, runs=len(params.train.seeds))
+    _, per_update, _, _ = training_split(params, square, "paper", "cr", episodes, runs=3)
     after = resource.getrusage(resource.RUSAGE_SELF)
     print(json.dumps({"per_update": per_update, "faults": after.ru_minflt - before.ru_minflt,
                       "system_seconds": after.ru_stime - before.ru_stime}))
@@ -319,7 +320,7 @@ def main(argv=None) -> int:
         print(f"{config}: where an update's time goes (every aten call timed, so the total runs slower): " + "; ".join(
             f"{k} {ms:.2f} ms" + (f" at {gf:.1f} GFLOPS" if gf == gf else "") for k, (ms, gf) in sorted(parts.items())))
 
-    seeds = len(params.train.seeds)
+    seeds = 3  # a stack of three seeds: more gives `tuned` nothing per run
     print(f"== 1. training time per run, square (one thread): a run alone, and {seeds} seeds stacked in one "
           "process as the pipeline trains them ==")
     splits = {}
@@ -339,8 +340,8 @@ def main(argv=None) -> int:
     runs, projected, at_floor = train_stage_projection(params, splits, floors)
     print(f"pipeline `train` stage, {runs} runs, two processes at a time: projected {projected / 60:.0f} min at "
           f"these speeds (two processes share the memory bus, so the stage runs a little longer: README has the "
-          f"measured time); {at_floor / 60:.0f} min if every update ran at its matmul floor. Issue 3 asks for 45 "
-          f"min for the whole `dvc repro`, of which `evaluate`, `figures` and `report` take a few minutes")
+          f"measured time); {at_floor / 60:.0f} min if every update ran at its matmul floor. The pipeline's budget "
+          f"is 45 min for the whole `dvc repro`, of which `evaluate`, `figures` and `report` take a few minutes")
 
     print("== 2. one MADDPG update of 9 agents ==")
     for config in CONFIGS:

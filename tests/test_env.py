@@ -135,3 +135,47 @@ def test_bad_action_shape(params, regions):
     env.reset()
     with pytest.raises(ValueError, match="shape"):
         env.step(np.zeros((2, 8, 2)))
+
+
+def test_starts_opposite_corner_and_random(params, regions):
+    from replicate.env import CoverageEnv
+
+    region = regions["square"]
+    env = CoverageEnv(region, params.world, params.coverage, n_envs=20)
+    minx, miny, maxx, maxy = region.polygon.bounds
+    corner = env.reset(1)
+    assert (corner.max(axis=(0, 1)) <= np.array([minx, miny]) + params.world.start_patch + 1e-9).all()
+    opposite = env.reset(1, start="opposite")
+    assert (opposite.min(axis=(0, 1)) >= np.array([maxx, maxy]) - params.world.start_patch - 1e-9).all()
+    assert env.reset(2).min() >= maxx - params.world.start_patch - 1e-9, "the start is kept for later resets"
+    spread = env.reset(1, start="random")
+    inside = shapely.contains_xy(region.polygon, spread[..., 0].ravel(), spread[..., 1].ravel())
+    assert inside.all() and spread.std(axis=(0, 1)).min() > 0.5  # over the whole region, not a patch
+    with pytest.raises(ValueError, match="start must be one of"):
+        env.reset(1, start="middle")
+
+
+def test_lost_buoys_stop_and_leave_the_baselines(params, regions):
+    from replicate.baselines import lloyd, voronoi_centroids
+    from replicate.env import CoverageEnv
+
+    region = regions["square"]
+    env = CoverageEnv(region, params.world, params.coverage, n_envs=4)
+    env.reset(3, start="random")
+    env.vel[:] = 0.3
+    env.lose(3, np.random.default_rng(0))
+    assert env.alive.sum(axis=1).tolist() == [6] * 4 and env.live_positions().shape == (4, 6, 2)
+    lost = env.pos[~env.alive].copy()
+    policy = lloyd(params.evaluate.lloyd)
+    action = policy(env)
+    assert (action[~env.alive] == 0).all()
+    live = env.live_positions()
+    expected = np.clip(params.evaluate.lloyd.gain * (voronoi_centroids(region.polygon, live) - live)
+                       - params.evaluate.lloyd.damping * env.live(env.vel), -1, 1)
+    np.testing.assert_allclose(action[env.alive].reshape(4, 6, 2), expected)  # Lloyd of the six, not the nine
+    env.step(action)
+    np.testing.assert_array_equal(env.pos[~env.alive], lost)  # a lost buoy stays where it was lost
+    with pytest.raises(ValueError, match="keep one"):
+        env.lose(6, np.random.default_rng(0))
+    env.reset(3)
+    assert env.alive is None, "a reset brings every buoy back"

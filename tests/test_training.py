@@ -5,10 +5,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
+import shlex
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -66,9 +69,9 @@ def test_short_cr_run_learns(params, regions, tmp_path):
     1,494 → 2,736, 0.15 → 0.35; seed 1 1,513 → 3,254, 0.19 → 0.51; seed 2 1,453 → 2,748, 0.19 → 0.35; random
     actions cover 0.22. The test uses seed 0 (the smallest return gain; seed 2's coverage gain, + 0.128, is the
     smallest), with bounds inside its numbers: return × 1.5 (measured × 1.83) and coverage above random + 0.1
-    (measured + 0.135). Session 7's one-step `tuned` measured × 1.41 and
-    + 0.11 on seed 0 and had not got going on seed 1 by episode 1,000 (× 1.05); the 5-step targets of session 8
-    learn faster early. Untrained actors can already cover 0.15-0.19, because the geofence stops each agent's
+    (measured + 0.135). The earlier one-step `tuned` measured × 1.41 and
+    + 0.11 on seed 0 and had not got going on seed 1 by episode 1,000 (× 1.05); 5-step targets learn faster
+    early. Untrained actors can already cover 0.15-0.19, because the geofence stops each agent's
     constant random heading at a different wall.
     """
     seed = 0
@@ -296,24 +299,21 @@ SMALL = ["--set", "configs.tuned.n_envs=10", "--set", "configs.tuned.maddpg.lear
 
 
 def test_killed_run_resumes_to_the_same_curve(tmp_path):
-    """Kill a run after its first checkpoints; --resume finishes it with the curve of an uninterrupted run."""
+    """Kill a run after its first checkpoints; `--resume RUN` finishes it with the curve of an uninterrupted run."""
     common = [*SMALL, "--set", "configs.tuned.select_every=20",
               "train", "--config", "tuned", "--method", "cr", "--region", "square", "--episodes", "80",
               "--seed", "4", "--checkpoint-every", "10", "--no-progress"]
     assert cli(*common, "--out", str(tmp_path / "whole")).wait(timeout=600) == 0
 
     proc = cli(*common, "--out", str(tmp_path / "cut"))
-    ckpt = tmp_path / "cut" / "checkpoint.pt"
-    deadline = time.time() + 300
-    while time.time() < deadline and not (ckpt.exists() and (tmp_path / "cut" / CURVE).stat().st_size > 500):
-        time.sleep(0.05)
+    wait_for_checkpoint(tmp_path / "cut")
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     cut_rows = len(read_text(tmp_path / "cut" / CURVE).splitlines()) - 1
     assert 0 < cut_rows < 80, "the run must be cut before its end"
     refused = cli(*common, "--out", str(tmp_path / "cut"), stderr=subprocess.PIPE, text=True)
-    assert refused.wait(timeout=300) == 2 and "--resume" in refused.stderr.read()
-    assert cli(*common, "--out", str(tmp_path / "cut"), "--resume").wait(timeout=600) == 0
+    assert refused.wait(timeout=300) == 2 and f"replicate train --resume {tmp_path / 'cut'}" in refused.stderr.read()
+    assert cli("train", "--resume", str(tmp_path / "cut"), "--no-progress").wait(timeout=600) == 0  # nothing else
     whole = evaluate.read_curve(tmp_path / "whole" / CURVE)
     resumed = evaluate.read_curve(tmp_path / "cut" / CURVE)
     for column in ("team_reward", "coverage", "critic_loss"):
@@ -322,6 +322,57 @@ def test_killed_run_resumes_to_the_same_curve(tmp_path):
     for a, b in zip(load_actors(tmp_path / "cut" / "actors.pt")[0].parameters(),
                     load_actors(tmp_path / "whole" / "actors.pt")[0].parameters()):
         torch.testing.assert_close(a, b, rtol=0, atol=0)
+    again = cli("train", "--resume", str(tmp_path / "cut"), stderr=subprocess.PIPE, text=True)
+    assert again.wait(timeout=300) == 2 and "already finished" in again.stderr.read()
+
+
+def wait_for_checkpoint(run: Path, timeout: float = 300) -> None:
+    deadline = time.time() + timeout
+    while time.time() < deadline and not ((run / "checkpoint.pt").exists() and (run / CURVE).exists()
+                                          and (run / CURVE).stat().st_size > 500):
+        time.sleep(0.05)
+
+
+def test_interrupted_run_resumes_with_the_command_it_prints(tmp_path):
+    """Ctrl-C prints the command that continues the run; that command, exactly, finishes it."""
+    out = tmp_path / "my run"
+    proc = cli(*SMALL, "train", "--config", "tuned", "--method", "cr", "--region", "square", "--episodes", "60",
+               "--checkpoint-every", "10", "--no-progress", "--out", str(out), stderr=subprocess.PIPE, text=True)
+    wait_for_checkpoint(out)
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=300) == 130
+    hint = re.search(r"`(replicate train --resume .+?)`", proc.stderr.read())
+    assert hint, "the interruption names the command that continues the run"
+    argv = shlex.split(hint.group(1))
+    assert argv[:3] == ["replicate", "train", "--resume"] and Path(argv[3]) == out
+    assert cli(*argv[1:], "--no-progress").wait(timeout=600) == 0
+    assert json.loads((out / "run.json").read_text())["status"] == "finished"
+    assert not list(out.glob(".*.tmp")), "no partial files are left behind"
+
+
+def test_training_into_a_finished_run_leaves_it_unchanged(tmp_path):
+    out = tmp_path / "done"
+    args = [*SMALL, "train", "--config", "tuned", "--method", "sw", "--region", "square", "--episodes", "20",
+            "--no-progress", "--out", str(out)]
+    assert cli(*args).wait(timeout=600) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    refused = cli(*args, "--seed", "3", stderr=subprocess.PIPE, text=True)
+    assert refused.wait(timeout=300) == 2 and "holds a finished run" in refused.stderr.read()
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    (out / "notes.txt").write_text("mine")
+    assert cli(*args, "--seed", "3", "--force").wait(timeout=600) == 0
+    assert not (out / "notes.txt").exists(), "--force clears the folder first"
+    assert json.loads((out / "run.json").read_text())["seed"] == 3
+    assert {oct(p.stat().st_mode & 0o777) for p in out.iterdir()} == {"0o644"}
+
+
+def test_a_refused_schedule_leaves_no_folder(tmp_path):
+    out = tmp_path / "never"
+    proc = cli("--set", "train.checkpoint_every=0", "train", "--out", str(out), stderr=subprocess.PIPE, text=True)
+    assert proc.wait(timeout=300) == 2 and "checkpoint_every must be at least 1" in proc.stderr.read()
+    proc = cli("--set", "configs.paper.n_envs=0", "train", "--out", str(out), stderr=subprocess.PIPE, text=True)
+    assert proc.wait(timeout=300) == 2 and "n_envs must be at least 1" in proc.stderr.read()
+    assert not out.exists()
 
 
 def test_cli_train_and_evaluate_with_baseline(tmp_path):
@@ -345,13 +396,37 @@ def test_cli_train_and_evaluate_with_baseline(tmp_path):
         (["--set", "train.epsiodes=3", "train"], "unknown key 'epsiodes'"),
         (["train", "--episodes", "15"], "must be a multiple of n_envs"),
         (["evaluate", "--baseline", "oracle", "--region", "square"], "unknown baseline 'oracle'"),
-        (["train", "--resume", "--out", "/nonexistent/run", "--episodes", "50"], "no checkpoint"),
+        (["train", "--resume", "/nonexistent/run"], "no such run folder"),
+        (["train", "--seed", str(2**70), "--out", "/tmp/never-written"], "--seed must be a whole number"),
+        (["train", "--seed", "-1"], "--seed must be a whole number from 0"),
+        (["--set", "coverage.radius=-0.5", "train"], "coverage.radius must be a positive number"),
+        (["--set", "world.n_agents=1000", "train"], "world.n_agents must be between 1 and 200"),
+        (["cover", "--region", "data/bedok_outline.geojson", "--radius-m", "nan", "--out", "/tmp/never-written"],
+         "--radius-m must be a positive number"),
+        (["cover", "--region", "data/bedok_outline.geojson", "--episodes", "0", "--out", "/tmp/never-written"],
+         "--episodes must be at least 1"),
+        (["cover", "--region", "data/bedok_outline.geojson", "--n-agents", "1000"], "--n-agents must be between"),
+        (["act", "--policy", "p.pt", "--obs", "1,2;3"], "every row as long"),
+        (["act", "--policy", "p.pt", "--obs", "nan,2;3,4"], "finite numbers"),
+        (["evaluate", "--baseline", "naive", "--region", "square", "--out", "tests"], "is a folder"),
+        (["train", "--out", "README.md"], "is a file, not a folder"),
     ],
 )
 def test_cli_errors_are_clear(args, message):
     proc = cli(*args, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     assert proc.wait(timeout=300) == 2
-    assert message in proc.stderr.read()
+    err = proc.stderr.read()
+    assert message in err and "Traceback" not in err
+    assert not Path("/tmp/never-written").exists()
+
+
+def test_invalid_yaml_names_the_file_and_line(tmp_path):
+    bad = tmp_path / "params.yaml"
+    bad.write_text("world: [unclosed\n")
+    proc = cli("--params", str(bad), "train", stderr=subprocess.PIPE, text=True)
+    assert proc.wait(timeout=300) == 2
+    err = proc.stderr.read()
+    assert f"{bad}: not valid YAML at line 2" in err and "Traceback" not in err
 
 
 def test_baselines_order_on_square(params, regions):

@@ -36,12 +36,26 @@ def random_policy(rng: np.random.Generator) -> Policy:
     return policy
 
 
+def for_live_buoys(steer: Callable[[CoverageEnv, np.ndarray, np.ndarray], np.ndarray]) -> Policy:
+    """A policy from ``steer(env, pos, vel) → actions``, all [E, M, 2], that sees only the buoys still in service:
+    a lost buoy neither steers nor is seen by the others."""
+
+    def policy(env: CoverageEnv) -> np.ndarray:
+        action = steer(env, env.live(env.pos), env.live(env.vel))
+        if env.alive is None:
+            return action
+        out = np.zeros((env.n_envs, env.n_agents, 2))
+        out[env.alive] = action.reshape(-1, 2)
+        return out
+
+    return policy
+
+
 def naive_swarming(cfg: NaiveConfig) -> Policy:
     """Attraction toward the interior (the points where the coverage polygon fits, Reg ⊖ Cov) for agents
     outside it, plus linear repulsion from every agent closer than ``avoid_range``, minus a velocity damping."""
 
-    def policy(env: CoverageEnv) -> np.ndarray:
-        pos, vel = env.pos, env.vel
+    def steer(env: CoverageEnv, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
         target_region = env.geometry.eroded if not env.geometry.eroded.is_empty else env.region.polygon
         flat = pos.reshape(-1, 2)
         outside = ~shapely.contains_xy(target_region, flat[:, 0], flat[:, 1])
@@ -58,7 +72,7 @@ def naive_swarming(cfg: NaiveConfig) -> Policy:
         action = attract.reshape(pos.shape) + avoid - cfg.damping * vel
         return np.clip(action, -1.0, 1.0)
 
-    return policy
+    return for_live_buoys(steer)
 
 
 def voronoi_centroids(region: Polygon, xy: np.ndarray) -> np.ndarray:
@@ -103,8 +117,8 @@ def voronoi_centroids(region: Polygon, xy: np.ndarray) -> np.ndarray:
 def lloyd(cfg: LloydConfig) -> Policy:
     """Steer toward the clipped Voronoi centroid: a = gain·(c − p) − damping·v, clipped to [-1, 1]."""
 
-    def policy(env: CoverageEnv) -> np.ndarray:
-        target = voronoi_centroids(env.region.polygon, env.pos)
-        return np.clip(cfg.gain * (target - env.pos) - cfg.damping * env.vel, -1.0, 1.0)
+    def steer(env: CoverageEnv, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
+        target = voronoi_centroids(env.region.polygon, pos)
+        return np.clip(cfg.gain * (target - pos) - cfg.damping * vel, -1.0, 1.0)
 
-    return policy
+    return for_live_buoys(steer)

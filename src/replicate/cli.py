@@ -4,14 +4,17 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 import warnings
 from pathlib import Path
 
+import shapely
+
 from . import artifacts
 from .artifacts import CheckpointError
-from .config import ConfigError, Params, load_params, run_config
+from .config import MAX_AGENTS, ConfigError, Params, check_seed, load_params, positive, run_config
 from .regions import Region, RegionError, make_region, region_from_file
 
 
@@ -38,31 +41,115 @@ def overrides(pairs: list[str] | None) -> dict:
     return out
 
 
+def resume_command(run: Path) -> str:
+    import shlex
+
+    return f"replicate train --resume {shlex.quote(str(run))}"
+
+
+def claim_run_folder(out: Path, force: bool) -> bool:
+    """Make ``out`` ready for a new run: refuse a folder that holds a run (finished or interrupted) or anything
+    else, unless ``force``, which clears it first. → whether the folder was created here (so that a run that
+    fails before writing anything can leave no empty folder behind)."""
+    import json
+    import shutil
+
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: is a file, not a folder; choose a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not force:
+            run = out / "run.json"
+            if (out / "checkpoint.pt").exists():
+                raise ConfigError(f"--out {out}: holds an interrupted run; continue it with `{resume_command(out)}`, "
+                                  "or pass --force to start over")
+            if run.exists() and json.loads(run.read_text()).get("status") == "finished":
+                d = json.loads(run.read_text())
+                raise ConfigError(f"--out {out}: holds a finished run ({d.get('config')}/{d.get('method')} on "
+                                  f"{d.get('region')}, seed {d.get('seed')}, {d.get('episodes')} episodes); pass "
+                                  "--force to replace it, or choose another --out")
+            raise ConfigError(f"--out {out}: is not empty; pass --force to clear it, or choose another --out")
+        shutil.rmtree(out)
+    created = not out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"--out {out}: cannot create the folder ({exc.strerror}); choose a writable folder") from exc
+    if not os.access(out, os.W_OK):
+        raise ConfigError(f"--out {out}: the folder is not writable; choose a writable folder")
+    return created
+
+
+def resumed_run(run: Path, params: Params):
+    """(run config, region, episodes, seed) of the interrupted run in ``run``, read from its own checkpoint: the
+    settings it was started with, whatever params.yaml says now."""
+    import json
+
+    from .config import RunConfig, from_mapping
+    from .geometry import region_key
+
+    if not run.is_dir():
+        raise ConfigError(f"--resume {run}: no such run folder")
+    if not (run / "checkpoint.pt").exists():
+        status = json.loads((run / "run.json").read_text()).get("status") if (run / "run.json").exists() else None
+        if status == "finished":
+            raise ConfigError(f"--resume {run}: the run has already finished (nothing to continue); evaluate it "
+                              f"with `replicate evaluate {run}`")
+        raise ConfigError(f"--resume {run}: no checkpoint here (a run checkpoints every train.checkpoint_every "
+                          "episodes; one stopped before its first checkpoint starts again with --force)")
+    ident = artifacts.torch_load(run / "checkpoint.pt").get("identity", {})
+    try:
+        rc = from_mapping(RunConfig, ident["params"], f"{run}/checkpoint.pt")
+        episodes, seed, name = int(ident["episodes"]), int(ident["seed"]), ident["region"]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{run}/checkpoint.pt: checkpoint is incomplete or mismatched ({exc})") from exc
+    wkt = run / "region.wkt"
+    if wkt.exists():
+        import shapely
+
+        region = Region(name, shapely.from_wkt(wkt.read_text()))
+    else:
+        region = resolve_region(name, params)
+    if region_key(region.polygon) != ident.get("region_key"):
+        raise CheckpointError(f"{run}: region {name!r} is not the one the run was started on")
+    return rc, region, episodes, seed
+
+
 def cmd_train(args: argparse.Namespace) -> int:
-    from .train import train
+    from .train import check_schedule, train
 
     params = load_params(args.params, overrides(args.set))
-    rc = run_config(params, args.config, args.method, args.region)
-    region = resolve_region(args.region, params)
-    episodes = args.episodes if args.episodes is not None else params.train.episodes
-    out = Path(args.out or f"runs/{args.config}-{args.method}-{region.name}-s{args.seed}")
+    every = args.checkpoint_every if args.checkpoint_every is not None else params.train.checkpoint_every
+    if args.resume:
+        out = Path(args.resume)
+        rc, region, episodes, seed = resumed_run(out, params)
+    else:
+        rc = run_config(params, args.config, args.method, args.region)
+        region = resolve_region(args.region, params)
+        episodes = args.episodes if args.episodes is not None else params.train.episodes
+        seed = check_seed(args.seed)
+        out = Path(args.out or f"runs/{args.config}-{args.method}-{region.name}-s{seed}")
     for note in region.notes:
         print(f"region {region.name}: {note}", file=sys.stderr)
+    args.interrupted_hint = f"`{resume_command(out)}` continues from the last checkpoint"
+    check_schedule(rc, episodes, every)
+    created = False
+    if not args.resume:
+        created = claim_run_folder(out, args.force)
+        artifacts.atomic_write_text(out / "region.wkt", region.polygon.wkt)  # so --resume needs only the folder
     t0 = time.perf_counter()
-    summary = train(
-        rc,
-        region,
-        episodes,
-        args.seed,
-        out,
-        checkpoint_every=args.checkpoint_every or params.train.checkpoint_every,
-        resume=args.resume,
-        progress=not args.no_progress,
-    )
+    try:
+        summary = train(rc, region, episodes, seed, out,
+                        checkpoint_every=every, resume=args.resume is not None, progress=not args.no_progress)
+    except (ConfigError, ValueError):
+        if created and not (out / "checkpoint.pt").exists():  # refused before training: leave nothing behind
+            import shutil
+
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     wall = time.perf_counter() - t0
     print(
         f"trained {summary['config']}/{summary['method']} on {summary['region']} for {episodes} episodes "
-        f"(seed {args.seed}) in {wall:.1f} s wall ({summary['wall_seconds']:.1f} s in the training loop); "
+        f"(seed {seed}) in {wall:.1f} s wall ({summary['wall_seconds']:.1f} s in the training loop); "
         f"coverage over the last 100 training episodes {summary['final_coverage_last100']:.3f}; wrote {out}/"
     )
     if "selected_episode" in summary:
@@ -77,16 +164,19 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     params = load_params(args.params, overrides(args.set))
     if (args.run is None) == (args.baseline is None):
         raise ConfigError("give exactly one of --run RUN_DIR or --baseline NAME")
-    if args.run is not None:
-        result = evaluate_run(args.run, params, run_region(args.run, params, args.region))
-        default = Path(args.run) / "metrics.json"
-    else:
-        if not args.region:
-            raise ConfigError("--baseline needs --region")
-        region = resolve_region(args.region, params)
-        result = evaluate_baseline(args.baseline, params, region, args.config)
-        default = Path(f"metrics/baseline-{args.baseline}-{region.name}.json")
+    if args.baseline is not None and not args.region:
+        raise ConfigError("--baseline needs --region")
+    region = run_region(args.run, params, args.region) if args.run is not None else \
+        resolve_region(args.region, params)
+    default = (Path(args.run) / "metrics.json" if args.run is not None
+               else Path(f"metrics/baseline-{args.baseline}-{region.name}.json"))
     out = Path(args.out) if args.out else default
+    if out.is_dir():
+        raise ConfigError(f"--out {out}: is a folder; give the path of a JSON file")
+    if args.run is not None:
+        result = evaluate_run(args.run, params, region)
+    else:
+        result = evaluate_baseline(args.baseline, params, region, args.config)
     artifacts.write_json(out, result)
     cov = result["coverage"]
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f}, {cov['n']} episodes); wrote {out}")
@@ -105,24 +195,42 @@ def run_region(run_dir: str, params: Params, region: str | None) -> Region:
 def cmd_cover(args: argparse.Namespace) -> int:
     import tempfile
 
-    from .waterbody import cover, outline_file
-
     params = load_params(args.params, overrides(args.set))
+    check_seed(args.seed)
+    if args.episodes < 1:
+        raise ConfigError(f"--episodes must be at least 1, got {args.episodes}")
+    if args.radius_m is not None:
+        positive(args.radius_m, "--radius-m")
+    if args.n_agents is not None and not 1 <= args.n_agents <= MAX_AGENTS:
+        raise ConfigError(f"--n-agents must be between 1 and {MAX_AGENTS}, got {args.n_agents}")
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory() as tmp:
-        path = outline_file(args.region, args.place, args.name, Path(tmp))
-        if args.place:
-            artifacts.atomic_write_bytes(out / "outline.geojson", path.read_bytes())
-            path = out / "outline.geojson"
-        s = cover(path, params, out, args.episodes, args.seed, args.n_agents, args.radius_m, args.config,
-                  not args.no_progress)
+    created = claim_run_folder(out, args.force)
+    try:
+        s = cover_into(args, params, out, tempfile)
+    except BaseException:
+        if created and not (out / "run" / "checkpoint.pt").exists():
+            import shutil
+
+            shutil.rmtree(out, ignore_errors=True)  # refused or interrupted before training: leave nothing behind
+        raise
     cov, lloyd = s["coverage"], s["lloyd_coverage"]
     print(f"{s['region']}: {s['n_agents']} buoys of radius {s['radius_m']:.3g} m on {s['area_m2']:.4g} m² "
           f"({s['utm_crs']}, 1 sim m = {s['scale_m_per_sim_m']:.4g} m), T = {s['episode_length']}")
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f}) vs Lloyd {lloyd['mean']:.3f}: "
           f"{s['ratio_to_lloyd']:.0%} of the Lloyd layout; wrote {out}/")
     return 0
+
+
+def cover_into(args: argparse.Namespace, params: Params, out: Path, tempfile) -> dict:
+    from .waterbody import cover, outline_file
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = outline_file(args.region, args.place, args.name, Path(tmp))
+        if args.place:
+            artifacts.atomic_write_bytes(out / "outline.geojson", path.read_bytes())
+            path = out / "outline.geojson"
+        return cover(path, params, out, args.episodes, args.seed, args.n_agents, args.radius_m, args.config,
+                     not args.no_progress)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -143,10 +251,17 @@ def cmd_act(args: argparse.Namespace) -> int:
 
     from .export import act
 
-    if args.obs is not None:
-        obs = np.array([[float(v) for v in row.split(",")] for row in args.obs.split(";")])
-    else:
-        obs = np.array(json.loads(Path(args.obs_file).read_text()))
+    try:
+        if args.obs is not None:
+            obs = np.array([[float(v) for v in row.split(",")] for row in args.obs.split(";")])
+        else:
+            obs = np.array(json.loads(Path(args.obs_file).read_text()), dtype=float)
+    except (ValueError, TypeError) as exc:
+        raise ConfigError("observations must be one row of numbers per buoy, every row as long (--obs "
+                          f"\"x,y;x,y;...\" or --obs-file with an [N, obs_dim] list): {exc}") from None
+    if obs.ndim != 2 or not np.isfinite(obs).all():
+        raise ConfigError("observations must be a table of finite numbers, one row per buoy; got "
+                          f"{'non-finite values' if obs.ndim == 2 else f'shape {obs.shape}'}")
     actions = act(args.policy, obs, real=args.real)
     print(json.dumps({f"buoy_{i}": [round(float(v), 6) for v in a] for i, a in enumerate(actions)}))
     return 0
@@ -158,6 +273,29 @@ def cmd_animate(args: argparse.Namespace) -> int:
     params = load_params(args.params, overrides(args.set))
     region = run_region(args.run, params, args.region)
     out = animate_run(args.run, params, region, args.out or Path(args.run) / "episode.gif", args.seed)
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    from .tuning import tune_baselines, tune_method
+
+    params = load_params(args.params, overrides(args.set))
+    if args.what == "baselines":
+        names = params.stages.get("pipeline", {}).get("regions", list(params.regions))
+        result = {"baselines": tune_baselines(params, {r: resolve_region(r, params) for r in names})}
+        out = Path(args.out or "metrics/tuning/baselines.json")
+        artifacts.write_json(out, result["baselines"])
+        for key, b in result["baselines"].items():
+            print(f"{key}: tuning coverage {b['tuning_coverage']:.3f} with {b['gains']} ({b['trials']} trials)")
+    else:
+        ms = params.tuning.method
+        result = tune_method(params, {r: resolve_region(r, params) for r in ms.regions})
+        out = Path(args.out or ms.result)
+        artifacts.write_json(out, result)
+        print(f"{ms.config} {ms.method.upper()}-MARL: tuning coverage {result['tuning_coverage']:.3f} with "
+              f"{result['values']} ({result['trials']} trials, {result['cpu_seconds']:.0f} CPU s); set them as "
+              f"configs.{ms.config}.per_method.{ms.method} in params.yaml to adopt them")
     print(f"wrote {out}")
     return 0
 
@@ -177,7 +315,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--out", default=None, help="run folder (default runs/CONFIG-METHOD-REGION-sSEED)")
     t.add_argument("--checkpoint-every", type=int, default=None, help="episodes between checkpoints")
-    t.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
+    t.add_argument("--resume", default=None, metavar="RUN",
+                   help="continue the interrupted run in folder RUN from its checkpoint, with the settings it was "
+                        "started with (nothing else needed)")
+    t.add_argument("--force", action="store_true",
+                   help="train into --out even if it holds a run or other files (the folder is cleared first)")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_train)
 
@@ -199,7 +341,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--n-agents", type=int, default=None, help="number of buoys (default: world.n_agents)")
     c.add_argument("--radius-m", type=float, default=None,
                    help="real scale: coverage radius in metres (default: the paper's 9 m² scale)")
-    c.add_argument("--out", default="runs/cover")
+    c.add_argument("--out", default="runs/cover", help="output folder (default runs/cover)")
+    c.add_argument("--force", action="store_true", help="replace what --out holds (the folder is cleared first)")
     c.add_argument("--no-progress", action="store_true")
     c.set_defaults(func=cmd_cover)
 
@@ -217,6 +360,14 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--real", action="store_true", help="observations are UTM metres (m/s), not simulation units")
     a.set_defaults(func=cmd_act)
 
+    u = sub.add_parser("tune", help="Optuna studies: the baselines' gains, or a method's training values")
+    u.add_argument("what", choices=("baselines", "method"),
+                   help="baselines: every gain of naive swarming and Lloyd per region (tuning.baselines); method: "
+                        "tuning.method's training values (trials train on the tuning seeds)")
+    u.add_argument("--out", default=None, help="JSON of the best values (default: metrics/tuning/baselines.json, "
+                                               "or tuning.method.result)")
+    u.set_defaults(func=cmd_tune)
+
     m = sub.add_parser("animate", help="GIF of an evaluation episode of a run")
     m.add_argument("run")
     m.add_argument("--region", default=None)
@@ -231,12 +382,16 @@ def main(argv: list[str] | None = None) -> int:
     warnings.simplefilter("default")
     try:
         return args.func(args)
-    except (ConfigError, RegionError, CheckpointError, FileNotFoundError, ValueError) as exc:
+    except (ConfigError, RegionError, CheckpointError, OSError, ValueError) as exc:
         print(f"replicate: error: {exc}", file=sys.stderr)
         return 2
+    except shapely.errors.GEOSException as exc:
+        print(f"replicate: error: the region's geometry cannot be used ({exc}); check the outline file, or repair "
+              "it (e.g. shapely.make_valid)", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
-        print("replicate: interrupted; `replicate train --resume --out RUN` continues from the last checkpoint",
-              file=sys.stderr)
+        hint = getattr(args, "interrupted_hint", None)
+        print("replicate: interrupted" + (f"; {hint}" if hint else ""), file=sys.stderr)
         return 130
 
 

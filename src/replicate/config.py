@@ -8,6 +8,7 @@ silently.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from collections.abc import Mapping
@@ -22,6 +23,23 @@ DEFAULT_PARAMS = Path("params.yaml")
 
 class ConfigError(ValueError):
     """A configuration value is unknown, missing or of the wrong type."""
+
+
+MAX_AGENTS = 200  # buoys per region: the pairwise terms grow as N², and 1,000 buoys took 5.6 GB
+MAX_SEED = 2**32 - 1  # the largest seed every generator takes (torch's manual_seed among them)
+
+
+def positive(value: float, where: str) -> float:
+    """``value`` if it is a finite number above 0, else a ConfigError naming ``where``."""
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise ConfigError(f"{where} must be a positive number, got {value!r}")
+    return value
+
+
+def check_seed(seed: int, where: str = "--seed") -> int:
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise ConfigError(f"{where} must be a whole number from 0 to {MAX_SEED}, got {seed!r}")
+    return seed
 
 
 @dataclass(frozen=True)
@@ -103,6 +121,9 @@ class AlgoConfig:
     union_weight: float | None = None  # c2 of eq. (6) for this config; None = cr_reward.c2
     select_every: int = 0  # episodes between validation rollouts that pick the kept actors; 0 = keep the last
     select_episodes: int = 20  # validation episodes (fixed starts, deterministic policy) per selection
+    # Values for one method only, chosen by that method's own search (``params.yaml`` ``tuning.method``):
+    # method → {dotted key inside this config: value}. ``run_config`` applies them; a run's config holds none.
+    per_method: dict[str, dict[str, Any]] | None = None
 
 
 @dataclass(frozen=True)
@@ -117,8 +138,15 @@ class RegionSpec:
 @dataclass(frozen=True)
 class TrainConfig:
     episodes: int
-    seeds: tuple[int, ...]
+    seeds: dict[str, tuple[int, ...]]  # config → the training seeds of its reported runs
     checkpoint_every: int
+
+    def seeds_of(self, config: str) -> tuple[int, ...]:
+        """The reported seeds of ``config``; an ablation config ``BASE-without-CHANGE`` has no seeds of its own
+        (``ablation.seeds`` gives them)."""
+        if config not in self.seeds:
+            raise ConfigError(f"train.seeds has no seeds for config {config!r}; known: {sorted(self.seeds)}")
+        return self.seeds[config]
 
 
 @dataclass(frozen=True)
@@ -148,6 +176,16 @@ class LloydConfig:
 
 
 @dataclass(frozen=True)
+class StartsConfig:
+    """Where the buoys are released: ``corner`` is the paper's start patch at the region's lower-left corner,
+    ``opposite`` the same patch at the upper-right corner, ``random`` uniform over the region."""
+
+    start: Literal["corner", "opposite", "random"]
+    horizon: float = 1.0  # episode length as a multiple of the region's T
+    lose: int = 0  # buoys lost (removed, no longer covering) half-way through the episode
+
+
+@dataclass(frozen=True)
 class EvaluateConfig:
     episodes: int
     seed: int
@@ -156,6 +194,101 @@ class EvaluateConfig:
     converge_final: int
     naive: NaiveConfig
     lloyd: LloydConfig
+    robustness: dict[str, StartsConfig] = field(default_factory=dict)  # scenario name → its starts and events
+
+
+@dataclass(frozen=True)
+class Dimension:
+    """One searched value: a number in [low, high] (``log``: sampled on a log scale; ``integer``: whole numbers)
+    or one of ``choices``."""
+
+    low: float | None = None
+    high: float | None = None
+    log: bool = False
+    integer: bool = False
+    choices: tuple[Any, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.choices is None and (self.low is None or self.high is None or not self.low < self.high):
+            raise ConfigError(f"a searched value needs low < high or choices, got {self}")
+        if self.log and (self.low is None or self.low <= 0):
+            raise ConfigError(f"a log-scale range needs low > 0, got {self}")
+
+
+@dataclass(frozen=True)
+class Search:
+    trials: int
+    space: dict[str, Dimension]  # searched key → its range
+
+
+@dataclass(frozen=True)
+class BaselineSearch:
+    storage: str  # SQLAlchemy URL of the studies (the tune_baselines stage's SQLite file by default)
+    naive: Search  # every gain of NaiveConfig
+    lloyd: Search  # every gain of LloydConfig (converged_steps is not a gain)
+
+
+@dataclass(frozen=True)
+class MethodSearch:
+    """A search of one method's training values inside a config (the study writes no config: its best values
+    go into ``configs.CONFIG.per_method.METHOD`` by hand, with the study's name beside them)."""
+
+    storage: str  # SQLAlchemy URL of the study (a committed SQLite file by default)
+    result: str  # JSON of the best values, read by the report
+    config: str
+    method: str
+    regions: tuple[str, ...]
+    seeds: tuple[int, ...]  # training seeds of every trial, never reported
+    episodes: int
+    trials: int
+    space: dict[str, Dimension]  # dotted key inside the config → its range
+
+
+@dataclass(frozen=True)
+class HandSearch:
+    """The record of a search made by hand (``docs/TUNING.md``), for the report's budgets."""
+
+    config: str
+    method: str
+    configurations: int
+    runs: int
+    cpu_seconds: float
+    note: str
+
+
+@dataclass(frozen=True)
+class TuningConfig:
+    sampler_seed: int  # the TPE sampler's seed: the same trials in the same order on every machine
+    starts_seed: int  # evaluation starts of every trial (never ``evaluate.seed``)
+    starts: int  # evaluation episodes per trial
+    baselines: BaselineSearch
+    method: MethodSearch
+    hand_search: HandSearch
+
+
+@dataclass(frozen=True)
+class Target:
+    at_least: float  # coverage, or with ``of`` a fraction of that baseline's coverage
+    of: Literal["lloyd_tuned"] | None = None
+
+
+@dataclass(frozen=True)
+class ReportConfig:
+    """The verdict rules, fixed before the numbers (REPORT.md prints each beside its verdict)."""
+
+    level: float  # confidence level of every interval
+    resamples: int  # bootstrap resamples
+    seed: int  # the bootstrap's generator
+    margin: float  # coverage: "A beats B" when the CI of mean(A) − mean(B) lies above this
+    spread_margin: float  # metres: "CR spreads more" when the CI of Δ nearest-neighbour lies above this
+    about_episodes: int  # "about 5,000 episodes": within this many episodes of 5,000
+    not_converged_after: int  # "not converged by 10,000": no convergence episode, or one after this
+    majority: float  # claim 1 holds for a method when at least this fraction of its seeds meets it
+    partly: float  # a claim over several cells: every cell holds → reproduced; at least this fraction → partly
+    acceptable: float  # "acceptable coverage": the CI's lower bound at or above this fraction of the ceiling
+    sensitivity: tuple[float, ...]  # factors applied to the margins and tolerances for the sensitivity column
+    targets: dict[str, Target]  # region → tuned CR-MARL's coverage bar, on every seed
+    target_seconds: float  # one core's seconds per 10,000-episode run
 
 
 @dataclass(frozen=True)
@@ -167,6 +300,7 @@ class AblationConfig:
     reference: str
     method: str
     regions: tuple[str, ...]
+    seeds: tuple[int, ...]
     changes: dict[str, tuple[str, ...]]
 
 
@@ -185,9 +319,26 @@ class Params:
     regression: RegressionConfig
     evaluate: EvaluateConfig
     ablation: AblationConfig
+    tuning: TuningConfig
+    report: ReportConfig
     stages: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        w, c = self.world, self.coverage
+        for where, value in (("world.agent_radius", w.agent_radius), ("world.sensitivity", w.sensitivity),
+                             ("world.mass", w.mass), ("world.dt", w.dt), ("world.start_patch", w.start_patch),
+                             ("world.region_area", w.region_area), ("coverage.radius", c.radius),
+                             ("coverage.table_spacing", c.table_spacing),
+                             ("coverage.raster_spacing", c.raster_spacing)):
+            positive(value, where)
+        if not 1 <= w.n_agents <= MAX_AGENTS:
+            raise ConfigError(f"world.n_agents must be between 1 and {MAX_AGENTS}, got {w.n_agents}")
+        if c.edges < 3:
+            raise ConfigError(f"coverage.edges: a coverage polygon needs at least 3 edges, got {c.edges}")
+        if not 0 <= w.damping < 1:
+            raise ConfigError(f"world.damping must be in [0, 1), got {w.damping}")
+        if w.episode_length < 1:
+            raise ConfigError(f"world.episode_length must be at least 1, got {w.episode_length}")
         ab = self.ablation
         for name in (ab.base, ab.reference):
             if name not in self.configs:
@@ -199,12 +350,21 @@ class Params:
             raise ConfigError(f"ablation.regions: unknown region(s) {unknown}")
         for change in ab.changes:
             ablation_config(self, change)  # every key must exist
+        for name in self.pipeline_configs():
+            if name not in self.train.seeds:
+                raise ConfigError(f"train.seeds: no seeds for config {name!r}")
+        for name, algo in self.configs.items():
+            for method in algo.per_method or {}:
+                method_config(self, name, method)  # every key must exist and type-check
         for name, algo in self.configs.items():
             if algo.maddpg.n_step < 1:
                 raise ConfigError(f"configs.{name}.maddpg.n_step must be at least 1, got {algo.maddpg.n_step}")
         for name, spec in self.regions.items():
             if spec.episode_length is not None and spec.episode_length < 1:
                 raise ConfigError(f"regions.{name}.episode_length must be at least 1, got {spec.episode_length}")
+
+    def pipeline_configs(self) -> list[str]:
+        return list(self.stages.get("pipeline", {}).get("configs", []))
 
     def all_configs(self) -> dict[str, AlgoConfig]:
         """The written configs plus one derived config per ablation change."""
@@ -249,7 +409,26 @@ def dotted_parent(tree: dict, dotted: str, where: str) -> tuple[dict, str]:
 
 
 # Top-level sections that belong to pipeline stages (dvc.yaml) and are validated there.
-STAGE_SECTIONS = ("fetch_outline", "project_utm", "pipeline", "figures", "report")
+STAGE_SECTIONS = ("fetch_outline", "project_utm", "pipeline", "figures")
+
+
+@dataclass(frozen=True, order=True)
+class Cell:
+    """One cell of the training matrix: a config trained with a method on a region (over its seeds). Its
+    ``key`` names it in ``metrics/summary.json``."""
+
+    config: str
+    method: str
+    region: str
+
+    @property
+    def key(self) -> str:
+        return f"{self.config}/{self.method}/{self.region}"
+
+    @classmethod
+    def parse(cls, key: str) -> Cell:
+        config, method, region = key.split("/")
+        return cls(config, method, region)
 
 
 @dataclass(frozen=True)
@@ -337,8 +516,16 @@ def load_params(path: str | Path = DEFAULT_PARAMS, overrides: Mapping[str, Any] 
     path = Path(path)
     if not path.exists():
         raise ConfigError(f"{path}: no such parameters file")
-    with open(path) as fh:
-        raw = yaml.safe_load(fh)
+    try:
+        with open(path) as fh:
+            raw = yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise ConfigError(f"{path}: not valid YAML{at} ({getattr(exc, 'problem', exc)}); fix the file, or start "
+                          "from the repository's params.yaml") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read the parameters file ({exc})") from None
     if not isinstance(raw, dict):
         raise ConfigError(f"{path}: expected a mapping at the top level")
     for dotted, value in (overrides or {}).items():
@@ -358,21 +545,41 @@ def region_world(params: Params, region: str | None) -> WorldConfig:
     return dataclasses.replace(params.world, episode_length=spec.episode_length)
 
 
-def run_config(params: Params, config: str, method: str, region: str | None = None) -> RunConfig:
-    """Select one configuration (``paper``/``tuned``/an ablation of it) and method (``sw``/``cr``), on
-    ``region`` (its world from ``region_world``)."""
+def with_values(algo: AlgoConfig, values: Mapping[str, Any], where: str) -> AlgoConfig:
+    """``algo`` with the dotted keys of ``values`` (``maddpg.gamma``) set, type-checked; without ``per_method``."""
+    tree = to_dict(algo)
+    tree.pop("per_method", None)
+    for dotted, value in values.items():
+        node, key = dotted_parent(tree, dotted, where)
+        node[key] = value
+    return from_mapping(AlgoConfig, tree, where)
+
+
+def method_config(params: Params, config: str, method: str) -> AlgoConfig:
+    """Config ``config`` as method ``method`` trains it: its values with the method's own (``per_method``)."""
     configs = params.all_configs()
     if config not in configs:
         raise ConfigError(f"unknown config {config!r}; known: {sorted(configs)}")
     if method not in params.methods:
         raise ConfigError(f"unknown method {method!r}; known: {sorted(params.methods)}")
+    algo = configs[config]
+    own = (algo.per_method or {}).get(method)
+    if not own and algo.per_method is None:
+        return algo
+    return with_values(algo, own or {}, f"configs.{config}.per_method.{method}")
+
+
+def run_config(params: Params, config: str, method: str, region: str | None = None) -> RunConfig:
+    """Select one configuration (``paper``/``tuned``/an ablation of it) and method (``sw``/``cr``), on
+    ``region`` (its world from ``region_world``)."""
+    algo = method_config(params, config, method)
     return RunConfig(
         world=region_world(params, region),
         coverage=params.coverage,
         sw_reward=params.sw_reward,
         cr_reward=params.cr_reward,
         method=params.methods[method],
-        algo=configs[config],
+        algo=algo,
         config_name=config,
         method_name=method,
     )

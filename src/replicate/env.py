@@ -20,6 +20,7 @@ from .geometry import CoverageGeometry
 from .regions import Region, signed_distance
 
 OBSERVATIONS = ("position", "position_velocity")
+STARTS = ("corner", "opposite", "random")  # config.StartsConfig.start
 
 
 @dataclass
@@ -32,14 +33,15 @@ class StepResult:
     done: bool
 
 
-def start_patch(region: Polygon, side: float) -> Polygon:
+def start_patch(region: Polygon, side: float, at: str = "lower_left") -> Polygon:
     """SPEC §1 start: a ``side`` × ``side`` square around the interior point nearest the lower-left corner of
-    the region's box, clipped to the region (for a box region, exactly its lower-left corner square)."""
-    minx, miny, _, _ = region.bounds
+    the region's box, clipped to the region (for a box region, exactly its lower-left corner square);
+    ``at="upper_right"`` puts it at the opposite corner."""
+    minx, miny, maxx, maxy = region.bounds
     inner = region.buffer(-side / 2, join_style="mitre")
     if inner.is_empty:
         raise ValueError(f"the region is too small for a {side} m start patch")
-    corner = shapely.Point(minx, miny)
+    corner = shapely.Point(minx, miny) if at == "lower_left" else shapely.Point(maxx, maxy)
     _, nearest = nearest_points(corner, inner)
     patch = box(nearest.x - side / 2, nearest.y - side / 2, nearest.x + side / 2, nearest.y + side / 2)
     return patch.intersection(region)
@@ -93,6 +95,8 @@ class CoverageEnv:
             region.polygon, coverage.radius, coverage.edges, coverage.table_spacing, coverage.raster_spacing
         )
         self.patch = start_patch(region.polygon, world.start_patch)
+        self.start = "corner"  # where ``reset`` releases the buoys (``STARTS``)
+        self.alive: np.ndarray | None = None  # [E, N] bool once a buoy is lost (``lose``); None: all alive
         if geofence is None:
             self.fence = None
         else:
@@ -112,27 +116,62 @@ class CoverageEnv:
             raise ValueError(f"{self.n_envs} environments do not split into {len(seeds)} equal blocks")
         self.rngs = [np.random.default_rng(s) for s in seeds]
 
+    def start_area(self) -> Polygon:
+        """Where ``reset`` releases the buoys: the start patch, the opposite patch, or the whole region."""
+        if self.start == "corner":
+            return self.patch
+        if self.start == "opposite":
+            return start_patch(self.region.polygon, self.world.start_patch, "upper_right")
+        return self.region.polygon
+
     def sample_start(self, count: int, rng: np.random.Generator | None = None) -> np.ndarray:
-        """``count`` positions uniform in the start patch (rejection sampling from its box), drawn from ``rng``
+        """``count`` positions uniform in the start area (rejection sampling from its box), drawn from ``rng``
         (default: the first block's). → [count, 2]."""
         rng = self.rngs[0] if rng is None else rng
-        minx, miny, maxx, maxy = self.patch.bounds
+        area = self.start_area()
+        minx, miny, maxx, maxy = area.bounds
         out = np.empty((0, 2))
         while len(out) < count:
             cand = rng.uniform((minx, miny), (maxx, maxy), size=(2 * count, 2))
-            out = np.concatenate([out, cand[shapely.contains_xy(self.patch, cand[:, 0], cand[:, 1])]])
+            out = np.concatenate([out, cand[shapely.contains_xy(area, cand[:, 0], cand[:, 1])]])
         return out[:count]
 
-    def reset(self, seed: int | np.random.SeedSequence | list | None = None) -> np.ndarray:
-        """Release all buoys in the start patch at rest. → obs [E, N, obs_dim]."""
+    def reset(self, seed: int | np.random.SeedSequence | list | None = None, start: str | None = None) -> np.ndarray:
+        """Release all buoys at rest in the start area (``start``: one of ``STARTS``, kept for later resets;
+        default the paper's corner patch). → obs [E, N, obs_dim]."""
+        if start is not None:
+            if start not in STARTS:
+                raise ValueError(f"start must be one of {STARTS}, got {start!r}")
+            self.start = start
         if seed is not None:
             self.seed(seed)
         per_block = self.n_envs // len(self.rngs) * self.n_agents
         starts = [self.sample_start(per_block, rng) for rng in self.rngs]
         self.pos = np.concatenate(starts).reshape(self.n_envs, self.n_agents, 2)
         self.vel = np.zeros_like(self.pos)
+        self.alive = None
         self.t = 0
         return self.observe()
+
+    def lose(self, count: int, rng: np.random.Generator) -> None:
+        """Lose ``count`` buoys of each environment, drawn uniformly among its live ones from ``rng``: a lost buoy
+        stops where it is and no longer covers anything (``live_positions``), nor counts for the baselines."""
+        alive = np.ones((self.n_envs, self.n_agents), bool) if self.alive is None else self.alive.copy()
+        if count > int(alive.sum(axis=1).min()) - 1:
+            raise ValueError(f"cannot lose {count} of {self.n_agents} buoys and keep one")
+        for e in range(self.n_envs):  # E draws of a few indices: the loop is over environments, not agents
+            alive[e, rng.choice(np.flatnonzero(alive[e]), size=count, replace=False)] = False
+        self.alive = alive
+        self.vel = np.where(alive[..., None], self.vel, 0.0)
+
+    def live(self, x: np.ndarray) -> np.ndarray:
+        """The rows of the buoys still in service of a per-buoy array [E, N, ...] → [E, N_live, ...] (every
+        environment has lost as many)."""
+        return x if self.alive is None else x[self.alive].reshape(self.n_envs, -1, *x.shape[2:])
+
+    def live_positions(self) -> np.ndarray:
+        """Positions of the buoys still in service, [E, N_live, 2]."""
+        return self.live(self.pos)
 
     def observe(self) -> np.ndarray:
         """Own position (paper) or own position and velocity. → [E, N, obs_dim] float32."""
@@ -145,6 +184,8 @@ class CoverageEnv:
         w = self.world
         force = w.sensitivity * np.clip(action, -1.0, 1.0)
         self.vel = self.vel * (1.0 - w.damping) + (force / w.mass) * w.dt
+        if self.alive is not None:  # lost buoys stay where they were lost
+            self.vel = np.where(self.alive[..., None], self.vel, 0.0)
         self.pos = self.pos + self.vel * w.dt
         if self.fence is not None:
             lo, hi = self.fence

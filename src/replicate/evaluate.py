@@ -15,25 +15,55 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from . import artifacts, baselines, metrics
-from .config import ConfigError, Params, RunConfig, load_params, run_config, selection_only
+from . import artifacts, baselines, metrics, stats
+from .config import (
+    ConfigError,
+    LloydConfig,
+    NaiveConfig,
+    Params,
+    RunConfig,
+    StartsConfig,
+    load_params,
+    run_config,
+    selection_only,
+)
 from .env import CoverageEnv
 from .regions import Region, make_region
 from .train import CURVE, core_seconds, load_actors
 
-BASELINES = ("random", "naive", "lloyd", "lloyd_converged")
+# the paper's comparisons with hand-set gains and the same heuristics with gains tuned by ``tuning.py``, in the
+# order the evaluate stage starts them: costliest first (the converged Lloyd layouts run 500 steps)
+BASELINES = ("lloyd_converged", "lloyd_tuned", "lloyd", "naive_tuned", "naive", "random")
+PAPER_START = StartsConfig("corner")
 
 
-def rollout(env: CoverageEnv, policy, steps: int, seed: int) -> dict:
-    """Run ``policy`` for ``steps`` from a reset with ``seed``: positions at every step [steps + 1, E, N, 2] and
-    each agent's return under the environment's reward [E, N] (zeros when it has none)."""
-    env.reset(seed)
+def rollout(env: CoverageEnv, policy, steps: int, seed: int, starts: StartsConfig = PAPER_START) -> dict:
+    """Run ``policy`` for ``steps`` from a reset with ``seed`` at ``starts.start``, losing ``starts.lose`` buoys
+    after half the steps (drawn from a generator of ``seed``): positions at every step [steps + 1, E, N, 2],
+    the live buoys' last positions [E, N_live, 2], and each agent's return under the environment's reward [E, N]
+    (zeros when it has none)."""
+    env.reset(seed, start=starts.start)
+    loss_rng = np.random.default_rng([seed, 1])
     trace = [env.pos.copy()]
     returns = np.zeros((env.n_envs, env.n_agents))
-    for _ in range(steps):
+    for t in range(steps):
+        if starts.lose and t == steps // 2:
+            env.lose(starts.lose, loss_rng)
         returns += env.step(policy(env)).reward
         trace.append(env.pos.copy())
-    return {"positions": np.stack(trace), "returns": returns}
+    return {"positions": np.stack(trace), "live": env.live_positions().copy(), "returns": returns}
+
+
+def robustness(env: CoverageEnv, policy, params: Params, region: Region, rc: RunConfig) -> dict:
+    """Mean exact coverage of ``policy`` under every scenario of ``evaluate.robustness``, each from the
+    evaluation seed: {scenario: {"coverage", "steps"}}."""
+    out = {}
+    for name, starts in params.evaluate.robustness.items():
+        steps = round(starts.horizon * rc.world.episode_length)
+        live = rollout(env, policy, steps, params.evaluate.seed, starts)["live"]
+        cov = metrics.coverage_fraction(region.polygon, live, rc.coverage.radius, rc.coverage.edges)
+        out[name] = {"coverage": float(cov.mean()), "steps": steps}
+    return out
 
 
 def summarise(region: Region, trace: np.ndarray, radius: float, edges: int) -> dict:
@@ -85,12 +115,13 @@ def evaluate_run(run_dir: str | Path, params: Params, region: Region, actors: st
     env = eval_env(region, rc, ev.episodes, rc.algo.observation)
     if meta["observation"] != rc.algo.observation:
         raise ConfigError(f"{run_dir}: actors observe {meta['observation']!r}, params say {rc.algo.observation!r}")
-    pos = rollout(env, actor_policy(net, meta["observation"]), rc.world.episode_length, ev.seed)["positions"]
+    policy = actor_policy(net, meta["observation"])
+    pos = rollout(env, policy, rc.world.episode_length, ev.seed)["positions"]
     out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
+    out["robustness"] = robustness(env, policy, params, region, rc)
     curve = read_curve(run_dir / CURVE)
-    conv = metrics.convergence_episode(
-        curve["team_reward"], ev.converge_window, ev.converge_tolerance, ev.converge_final
-    )
+    conv = {str(f): metrics.convergence_episode(curve["team_reward"], ev.converge_window, f * ev.converge_tolerance,
+                                                ev.converge_final) for f in (1.0, *params.report.sensitivity)}
     run = json.loads((run_dir / "run.json").read_text())
     out.update(
         kind="run",
@@ -99,7 +130,8 @@ def evaluate_run(run_dir: str | Path, params: Params, region: Region, actors: st
         region=ident["region"],
         seed=ident["seed"],
         episodes=ident["episodes"],
-        convergence_episode=conv,
+        convergence_episode=conv["1.0"],
+        convergence_by_tolerance=conv,  # tolerance factor → convergence episode, for the report's sensitivity
         training_coverage_last100=float(curve["coverage"][-100:].mean()),
         core_seconds=core_seconds(run),  # one core's time for the run
     )
@@ -117,24 +149,40 @@ def eval_env(region: Region, rc: RunConfig, episodes: int, observation: str = "p
     )
 
 
-def evaluate_baseline(name: str, params: Params, region: Region, config: str = "paper") -> dict:
-    """Metrics of a baseline with the same physics, T and start as the runs of ``config``."""
+def baseline_policy(name: str, params: Params, tuned: dict | None = None) -> baselines.Policy:
+    """A baseline by name; ``naive_tuned``/``lloyd_tuned`` take their gains from ``tuned`` (the entry of
+    ``metrics/tuning/baselines.json`` for their kind and region)."""
+    ev = params.evaluate
+    if name == "random":
+        return baselines.random_policy(np.random.default_rng(ev.seed + 1))
+    if name == "naive":
+        return baselines.naive_swarming(ev.naive)
+    if name in ("lloyd", "lloyd_converged"):
+        return baselines.lloyd(ev.lloyd)
+    if tuned is None:
+        raise ConfigError(f"baseline {name!r} needs its tuned gains (the tune_baselines stage)")
+    if name == "naive_tuned":
+        return baselines.naive_swarming(NaiveConfig(**tuned["gains"]))
+    return baselines.lloyd(LloydConfig(**tuned["gains"], converged_steps=ev.lloyd.converged_steps))
+
+
+def evaluate_baseline(name: str, params: Params, region: Region, config: str = "paper",
+                      tuned: dict | None = None) -> dict:
+    """Metrics of a baseline with the same physics, T and start as the runs of ``config``, and under the
+    robustness scenarios (but the converged Lloyd layout, which is a limit, not a policy under a horizon)."""
     if name not in BASELINES:
         raise ConfigError(f"unknown baseline {name!r}; known: {list(BASELINES)}")
     rc = run_config(params, config, "cr", region.name)
     ev = params.evaluate
     env = eval_env(region, rc, ev.episodes)
-    steps = rc.world.episode_length
-    if name == "random":
-        policy = baselines.random_policy(np.random.default_rng(ev.seed + 1))
-    elif name == "naive":
-        policy = baselines.naive_swarming(ev.naive)
-    else:
-        policy = baselines.lloyd(ev.lloyd)
-        if name == "lloyd_converged":
-            steps = ev.lloyd.converged_steps
+    steps = ev.lloyd.converged_steps if name == "lloyd_converged" else rc.world.episode_length
+    policy = baseline_policy(name, params, tuned)
     pos = rollout(env, policy, steps, ev.seed)["positions"]
     out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
+    if name != "lloyd_converged":
+        out["robustness"] = robustness(env, policy, params, region, rc)
+    if tuned is not None:
+        out["gains"] = tuned["gains"]
     out.update(kind="baseline", baseline=name, region=region.name, steps=steps, config=config)
     out["ceiling"] = metrics.coverage_ceiling(region.area, rc.world.n_agents, rc.coverage.radius, rc.coverage.edges)
     return out
@@ -150,7 +198,7 @@ def _evaluate_one(job: dict) -> tuple[str, dict]:
     if "run" in job:
         result = evaluate_run(job["run"], params, region, job.get("actors", "actors.pt"), job.get("as_config"))
     else:
-        result = evaluate_baseline(job["baseline"], params, region)
+        result = evaluate_baseline(job["baseline"], params, region, tuned=job.get("tuned"))
     artifacts.write_json(job["out"], result)
     return job["out"], result
 
@@ -160,7 +208,7 @@ def selection_ablation_jobs(params_path: str, params: Params, run: Path, ident: 
     ablation config's name (its training is the base run's, step for step)."""
     ab = params.ablation
     if not (ident["config"] == ab.base and ident["method"] == ab.method and ident["region"] in ab.regions
-            and (run / "actors_last.pt").exists()):
+            and ident["seed"] in ab.seeds and (run / "actors_last.pt").exists()):
         return []
     jobs = []
     for change in (c for c in ab.changes if selection_only(params, c)):
@@ -171,10 +219,13 @@ def selection_ablation_jobs(params_path: str, params: Params, run: Path, ident: 
     return jobs
 
 
-def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, workers: int) -> dict:
-    """SPEC §8 metrics of every run in ``runs_dir`` and of every baseline on every region; a summary table."""
+def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, workers: int,
+                    tuned_baselines: str | Path) -> dict:
+    """SPEC §8 metrics of every run in ``runs_dir`` and of every baseline on every region (the tuned ones with the
+    gains in ``tuned_baselines``); a summary table."""
     metrics_dir = Path(metrics_dir)
     params = load_params(params_path)
+    tuned = json.loads(Path(tuned_baselines).read_text())
     jobs = []
     known = params.all_configs()
     for run in sorted(p for p in Path(runs_dir).iterdir() if (p / "actors.pt").exists()):
@@ -191,11 +242,13 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
     # the baselines first: the converged Lloyd layouts (500 steps of 100 episodes) are the longest jobs, and
     # started last they kept one process busy while the other idled
     jobs = [{"params": params_path, "baseline": name, "region": region,
+             "tuned": tuned.get(f"{name.removesuffix('_tuned')}/{region}") if name.endswith("_tuned") else None,
              "out": str(metrics_dir / "baselines" / f"{name}-{region}.json")}
-            for name in reversed(BASELINES) for region in regions] + jobs  # BASELINES ends with the costliest
+            for name in BASELINES for region in regions] + jobs
     with ProcessPoolExecutor(max_workers=workers) as pool:
         results = dict(pool.map(_evaluate_one, jobs))
-    summary = summarise_metrics(results.values())
+    summary = summarise_metrics(results.values(), stats.Bootstrap(params.report.level, params.report.resamples,
+                                                                   params.report.seed))
     summary = split_ablation(summary, params)
     artifacts.write_json(metrics_dir / "summary.json", summary)
     return summary
@@ -203,8 +256,10 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
 
 def split_ablation(summary: dict, params: Params) -> dict:
     """Move the ablation groups out of ``runs`` into ``ablation``: one row per change with the base config's
-    coverage (with the change) and the derived config's (without it), each over the same seeds."""
-    ab = params.ablation
+    coverage (with the change) and the derived config's (without it), each over the ablation's seeds, and the
+    bootstrap interval of Δ = with − without."""
+    ab, r = params.ablation, params.report
+    boot = stats.Bootstrap(r.level, r.resamples, r.seed)
     runs = dict(summary["runs"])
     rows = {}
     for change, keys in ab.changes.items():
@@ -213,19 +268,22 @@ def split_ablation(summary: dict, params: Params) -> dict:
             base = summary["runs"].get(f"{ab.base}/{ab.method}/{region}")
             if derived is None or base is None:
                 continue
+            with_ = [c for s, c in zip(base["seeds"], base["coverage_per_seed"]) if s in ab.seeds]
+            without = derived["coverage_per_seed"]
             rows[f"{change}/{region}"] = {
                 "keys": list(keys),
-                "with": base["coverage"],
-                "without": derived["coverage"],
-                "with_per_seed": base["coverage_per_seed"],
-                "without_per_seed": derived["coverage_per_seed"],
-                "delta": base["coverage"]["mean"] - derived["coverage"]["mean"],
+                "with": stats.mean_interval(with_, boot),
+                "without": stats.mean_interval(without, boot),
+                "with_per_seed": with_,
+                "without_per_seed": without,
+                "delta": stats.difference([with_], [without], boot),
             }
     return {**summary, "runs": runs, "ablation": rows}
 
 
-def summarise_metrics(results) -> dict:
-    """Coverage table: per config × method × region the mean over seeds with a 95 % CI, and the baselines."""
+def summarise_metrics(results, boot: stats.Bootstrap = stats.DEFAULT) -> dict:
+    """Coverage table: per config × method × region the mean over seeds with its bootstrap interval, each
+    robustness scenario likewise, and the baselines (deterministic: one value per region)."""
     groups: dict[str, list] = {}
     baselines = {}
     for r in results:
@@ -238,17 +296,28 @@ def summarise_metrics(results) -> dict:
                 "fraction_inside": r["fraction_inside"]["mean"],
                 "ceiling": r["ceiling"],
                 "steps": r["steps"],
+                **({"gains": r["gains"]} if "gains" in r else {}),
+                **({"robustness": {k: v["coverage"] for k, v in r["robustness"].items()}}
+                   if "robustness" in r else {}),
             }
     runs = {}
     for key, rs in sorted(groups.items()):
-        conv = [r["convergence_episode"] for r in rs]
+        rs = sorted(rs, key=lambda r: r["seed"])
+        scenarios = rs[0].get("robustness", {})
         runs[key] = {
-            "seeds": sorted(r["seed"] for r in rs),
-            "coverage": metrics.mean_ci([r["coverage"]["mean"] for r in rs]),
+            "seeds": [r["seed"] for r in rs],
+            "coverage": stats.mean_interval([r["coverage"]["mean"] for r in rs], boot),
             "coverage_per_seed": [round(r["coverage"]["mean"], 4) for r in rs],
-            "nearest_neighbour": metrics.mean_ci([r["nearest_neighbour"]["mean"] for r in rs]),
-            "fraction_inside": metrics.mean_ci([r["fraction_inside"]["mean"] for r in rs]),
-            "convergence_episode": conv,
-            "core_seconds": metrics.mean_ci([r["core_seconds"] for r in rs]),
+            "nearest_neighbour": stats.mean_interval([r["nearest_neighbour"]["mean"] for r in rs], boot),
+            "nearest_neighbour_per_seed": [round(r["nearest_neighbour"]["mean"], 4) for r in rs],
+            "fraction_inside": stats.mean_interval([r["fraction_inside"]["mean"] for r in rs], boot),
+            "convergence_episode": [r["convergence_episode"] for r in rs],
+            "convergence_by_tolerance": {f: [r["convergence_by_tolerance"][f] for r in rs]
+                                         for f in rs[0].get("convergence_by_tolerance", {})},
+            "core_seconds": stats.mean_interval([r["core_seconds"] for r in rs], boot),
+            "robustness": {name: {"coverage": stats.mean_interval([r["robustness"][name]["coverage"] for r in rs],
+                                                                  boot),
+                                  "per_seed": [round(r["robustness"][name]["coverage"], 4) for r in rs]}
+                           for name in scenarios},
         }
     return {"runs": runs, "baselines": baselines}

@@ -45,8 +45,9 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
         curves = curves_of[(config, method, region_name)]
         tag = f"{config}_{method}_{region_name}"
         label = f"{'SW' if method == 'sw' else 'CR'}-MARL, {region_name}, {config} config"
-        written.append(plots.reward_curves(curves, method, fig / f"fig_{tag}_reward.png", label))
         first = sorted(group)[0]
+        written.append(plots.reward_curves(curves, method, fig / f"fig_{tag}_reward.png", label,
+                                           seed=json.loads((first / "run.json").read_text())["seed"]))
         metrics = json.loads((metrics_dir / "runs" / f"{first.name}.json").read_text())
         xy = np.array(metrics["example"]["final_positions"])
         trails = np.array(metrics["example"]["trajectory"])
@@ -79,10 +80,24 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
                                                      fig / f"fig_{config}_coverage_{region_name}.png",
                                                      f"Coverage during training, {region_name}, {config} config"))
 
+    for config in params.configs:  # configs that select their actors log a deterministic validation curve
+        for region_name, region in regions.items():
+            validation = {f"{m.upper()}-MARL": [read_curve(r / "validation.csv") for r in sorted(group)]
+                          for (cf, m, rn), group in sorted(by_group.items()) if (cf, rn) == (config, region_name)
+                          and all((r / "validation.csv").exists() for r in group)}
+            if not validation:
+                continue
+            base = {b: summary["baselines"][f"{b}/{region_name}"]["coverage"] for b in ("naive_tuned", "lloyd_tuned")
+                    if f"{b}/{region_name}" in summary["baselines"]}
+            ceiling = coverage_ceiling(region.area, params.world.n_agents, c.radius, c.edges)
+            written.append(plots.evaluation_vs_episode(
+                validation, base, ceiling, fig / f"fig_{config}_evaluation_{region_name}.png",
+                f"Evaluation coverage during training, {region_name}, {config} config"))
+
     for region_name in params.ablation.regions:
         rows = {k.split("/")[0]: v for k, v in summary.get("ablation", {}).items() if k.endswith(f"/{region_name}")}
         if rows:
-            base = {b: summary["baselines"][f"{b}/{region_name}"]["coverage"] for b in ("naive", "lloyd")
+            base = {b: summary["baselines"][f"{b}/{region_name}"]["coverage"] for b in ("naive_tuned", "lloyd_tuned")
                     if f"{b}/{region_name}" in summary["baselines"]}
             written.append(plots.ablation(rows, base, fig / f"fig_ablation_{region_name}.png",
                                           f"{params.ablation.method.upper()}-MARL `{params.ablation.base}` on "

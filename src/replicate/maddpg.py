@@ -39,7 +39,7 @@ def stacked_matmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     product, a broadcast multiply. A narrow output (P < 16) of a transposed ``a`` (a weight gradient xᵀd of a 64 → 1
     or 64 → 2 layer) is computed as (bᵀ aᵀ)ᵀ, where aᵀ is the stored tensor and the wide dimension becomes the
     output's rows: 2-3x faster than ``bmm`` on the transposed view. With a stored ``a`` (a forward pass), plain
-    ``bmm`` is the faster form of a narrow output (1.5-2x, session 11; TRAINING_VERSION 3).
+    ``bmm`` is the faster form of a narrow output (1.5-2x on this project's CPUs; TRAINING_VERSION 3).
     """
     if b.shape[1] == 1:
         return a * b

@@ -50,11 +50,18 @@ def run_cost(rc, episodes: int) -> float:
     """A rough estimate of one run's training seconds on this machine, only to start the longest cells first:
     per run of a stack of seeds (as ``_train_cell`` trains them), ~40 µs of environment per transition and per
     update 0.66 ms + 18.3 µs per minibatch row (``tuned`` at 128 and ``paper`` at 1024 took ~3.0 and ~19 ms per
-    run in session 9's pipeline)."""
+    run when the pipeline trained each cell's seeds as one stack)."""
     cfg = rc.algo.maddpg
     transitions = episodes * rc.world.episode_length
     updates = max(transitions - cfg.learning_starts, 0) / cfg.update_every
     return 40e-6 * transitions + updates * (0.66e-3 + 18.3e-6 * cfg.batch_size)
+
+
+def cell_seeds(params, config: str) -> tuple[int, ...]:
+    """The training seeds of a cell: its config's reported seeds, or for an ablation config ``ablation.seeds``."""
+    if config in params.configs:
+        return params.train.seeds_of(config)
+    return params.ablation.seeds
 
 
 def ablation_cells(params) -> list[tuple[str, str, str]]:
@@ -72,22 +79,23 @@ def matrix_cells(params, configs, methods, regions, ablation: bool) -> list[tupl
     return cells + (ablation_cells(params) if ablation else [])
 
 
-def train_matrix(params_path: str, configs, methods, regions, seeds, episodes: int, runs_dir: str, workers: int,
+def train_matrix(params_path: str, configs, methods, regions, episodes: int, runs_dir: str, workers: int,
                  ablation: bool = False):
-    """Train every config × method × region × seed, ``workers`` processes at a time (one per core), then with
-    ``ablation`` the runs of ``params.ablation`` (same seeds and episodes). Each process trains one cell's seeds
-    together (``_train_cell``), the costliest cells first.
+    """Train every config × method × region × seed of the config (``train.seeds``), ``workers`` processes at a
+    time (one per core), then with ``ablation`` the runs of ``params.ablation`` (its seeds, same episodes). Each
+    process trains one cell's seeds together (``_train_cell``), the costliest cells first.
 
     Run again, the matrix skips runs already finished with identical settings and resumes interrupted ones
     from their checkpoints, so adding seeds or a configuration trains only what is new."""
     params = load_params(params_path)
     cells = matrix_cells(params, configs, methods, regions, ablation)
     jobs = [
-        {"params": params_path, "config": c, "method": m, "region": r, "seeds": list(seeds), "episodes": episodes,
-         "outs": [str(Path(runs_dir) / run_name(c, m, r, s)) for s in seeds]}
+        {"params": params_path, "config": c, "method": m, "region": r, "seeds": list(cell_seeds(params, c)),
+         "episodes": episodes, "outs": [str(Path(runs_dir) / run_name(c, m, r, s)) for s in cell_seeds(params, c)]}
         for c, m, r in cells
     ]
-    jobs.sort(key=lambda j: -run_cost(run_config(params, j["config"], j["method"], j["region"]), episodes))
+    jobs.sort(key=lambda j: -len(j["seeds"]) * run_cost(run_config(params, j["config"], j["method"], j["region"]),
+                                                        episodes))
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers) as pool:
         summaries = [s for cell in pool.map(_train_cell, jobs) for s in cell]

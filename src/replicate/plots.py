@@ -46,6 +46,8 @@ def draw_region(ax, region: Polygon, patch: Polygon | None = None):
     if patch is not None:
         draw_polygon(ax, patch, facecolor="none", edgecolor="k", linestyle="--", linewidth=1, label="start patch")
     ax.set_aspect("equal")
+    ax.set_xlabel("x (simulation m)")
+    ax.set_ylabel("y (simulation m)")
 
 
 def three_cases(region: Polygon, radius: float, edges: int, path) -> Path:
@@ -110,11 +112,13 @@ def spread(region: Polygon, patch: Polygon, xy: np.ndarray, radius: float, edges
     return save(fig, path)
 
 
-def reward_curves(curves: list[dict], method: str, path, title: str, window: int = 200) -> Path:
+def reward_curves(curves: list[dict], method: str, path, title: str, window: int = 200,
+                  seed: int | None = None) -> Path:
     """SW: the shared (average agent) reward, mean over seeds with a min-max band; CR: the nine agents' own
-    reward curves of the first seed (moving average over ``window`` episodes)."""
+    reward curves of one seed, ``seed`` (the first curve; moving average over ``window`` episodes)."""
     fig, ax = plt.subplots(figsize=(8, 3.8))
     if method == "cr":
+        title += f", seed {seed}" if seed is not None else ", first seed"
         c = curves[0]
         n = sum(1 for k in c if k.startswith("reward_"))
         for i in range(n):
@@ -151,15 +155,43 @@ def coverage_vs_episode(curves_by_method: dict[str, list[dict]], baselines: dict
         x = np.arange(length) + window - 1
         ax.plot(x, stack.mean(axis=0), color=f"C{k}", label=f"{label} ({len(curves)} seeds)")
         ax.fill_between(x, stack.min(axis=0), stack.max(axis=0), color=f"C{k}", alpha=0.2)
-    styles = {"random": ":", "naive": "--", "lloyd": "-.", "lloyd_converged": "-"}
+    styles = {"random": ":", "naive": "--", "naive_tuned": "--", "lloyd": "-.", "lloyd_tuned": "-.",
+              "lloyd_converged": "-"}
     for name, value in baselines.items():
-        ax.axhline(value, color="grey", linestyle=styles.get(name, ":"), linewidth=1, label=f"{name} {value:.2f}")
+        ax.axhline(value, color="k" if name.endswith("_tuned") else "grey", linestyle=styles.get(name, ":"),
+                   linewidth=1, label=f"{name} {value:.2f}")
     ax.axhline(ceiling, color="k", linewidth=0.8, label=f"ceiling {ceiling:.3f}")
     ax.set_ylim(0, 1)
     ax.set_xlabel("episode")
     ax.set_ylabel("coverage fraction at the last step")
     ax.set_title(title + f" ({window}-episode moving average)", fontsize=10)
     ax.legend(fontsize=7, ncol=2, loc="upper left")
+    return save(fig, path)
+
+
+def evaluation_vs_episode(validation_by_label: dict[str, list[dict]], baselines: dict[str, float], ceiling: float,
+                          path, title: str) -> Path:
+    """Evaluation coverage against training episode: each run's deterministic policy on its fixed validation
+    starts (``validation.csv``), mean over seeds with the interquartile band and the min-max band, beside the
+    baselines' evaluation coverage and the ceiling as horizontal lines."""
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for k, (label, vals) in enumerate(validation_by_label.items()):
+        length = min(len(v["coverage"]) for v in vals)
+        stack = np.stack([v["coverage"][:length] for v in vals])
+        x = vals[0]["episode"][:length]
+        ax.plot(x, stack.mean(axis=0), color=f"C{k}", label=f"{label} (mean of {len(vals)} seeds)")
+        ax.fill_between(x, *np.percentile(stack, [25, 75], axis=0), color=f"C{k}", alpha=0.3)
+        ax.fill_between(x, stack.min(axis=0), stack.max(axis=0), color=f"C{k}", alpha=0.1)
+    styles = {"naive": "--", "naive_tuned": "--", "lloyd": "-.", "lloyd_tuned": "-.", "lloyd_converged": "-"}
+    for name, value in baselines.items():
+        ax.axhline(value, color="k" if name.endswith("_tuned") else "grey", linestyle=styles.get(name, ":"),
+                   linewidth=1, label=f"{name} {value:.3f}")
+    ax.axhline(ceiling, color="k", linewidth=0.6, alpha=0.5, label=f"ceiling {ceiling:.3f}")
+    ax.set_ylim(0, 1)
+    ax.set_xlabel("training episode")
+    ax.set_ylabel("coverage fraction (validation starts)")
+    ax.set_title(title + "\nbands: interquartile range and min-max over seeds", fontsize=10)
+    ax.legend(fontsize=7, ncol=2, loc="lower right")
     return save(fig, path)
 
 

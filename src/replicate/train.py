@@ -31,8 +31,8 @@ DIAGNOSTICS = ("critic_loss", "q_abs", "saturated", "noise")
 CURVE = "curve.csv.gz"  # the per-episode curve of a run, in its folder
 # Part of every run's identity: raise it with any change that alters the numbers a run produces (the update's
 # arithmetic, the environment, the rewards), so that runs trained by older code are retrained, not reused.
-# 1: autograd update (sessions 1-5); 2: hand-written gradients in their fastest matmul forms (maddpg.py);
-# 3: a forward pass's narrow outputs (64 → 1, 64 → 2) by plain bmm, no longer transposed (session 11).
+# 1: autograd update; 2: hand-written gradients in their fastest matmul forms (maddpg.py);
+# 3: a forward pass's narrow outputs (64 → 1, 64 → 2) by plain bmm, no longer transposed.
 TRAINING_VERSION = 3
 
 
@@ -68,8 +68,8 @@ def run_identity(rc: RunConfig, region: Region, episodes: int, seed: int) -> dic
 
 
 def core_seconds(summary: dict) -> float:
-    """One core's time for a run: its process's wall time shared among the runs trained in it (runs trained before
-    session 9 ran one per process and do not record ``runs_in_process``)."""
+    """One core's time for a run: its process's wall time shared among the runs trained in it (runs trained one per
+    process do not record ``runs_in_process``)."""
     return summary["wall_seconds"] / summary.get("runs_in_process", 1)
 
 
@@ -106,6 +106,21 @@ def make_env(region: Region, rc: RunConfig, n_envs: int, seed, reward: bool = Tr
     )
 
 
+def check_schedule(rc: RunConfig, episodes: int, checkpoint_every: int) -> None:
+    """Refuse a training schedule that cannot run, before anything is written: episodes, environments and
+    checkpoints must be positive, and the episodes a whole number of batches of ``n_envs``."""
+    n_envs = rc.algo.n_envs
+    if n_envs < 1:
+        raise ConfigError(f"n_envs must be at least 1, got {n_envs} (configs.{rc.config_name}.n_envs)")
+    if episodes < 1:
+        raise ConfigError(f"episodes must be positive, got {episodes}")
+    if episodes % n_envs:
+        raise ConfigError(f"episodes ({episodes}) must be a multiple of n_envs ({n_envs}); "
+                          f"try {max(n_envs, episodes // n_envs * n_envs)}")
+    if checkpoint_every < 1:
+        raise ConfigError(f"checkpoint_every must be at least 1 episode, got {checkpoint_every}")
+
+
 @dataclass
 class Trainer:
     """S training runs of one config, method and region, one per seed of ``seeds``, written to the folders ``outs``
@@ -125,10 +140,7 @@ class Trainer:
 
     def __post_init__(self) -> None:
         algo = self.rc.algo
-        if self.episodes < 1:
-            raise ConfigError(f"episodes must be positive, got {self.episodes}")
-        if self.episodes % algo.n_envs:
-            raise ConfigError(f"episodes ({self.episodes}) must be a multiple of n_envs ({algo.n_envs})")
+        check_schedule(self.rc, self.episodes, self.checkpoint_every)
         self.seeds = [self.seeds] if isinstance(self.seeds, int) else list(self.seeds)
         self.outs = [Path(self.outs)] if isinstance(self.outs, (str, Path)) else [Path(o) for o in self.outs]
         if len(self.outs) != len(self.seeds) or len(set(self.seeds)) != len(self.seeds):
