@@ -11,7 +11,8 @@
    the same with every update at its matmul floor: how far a 45-minute budget for the whole `dvc repro`
    is on this machine.
 2. One update of all 9 agents, per configuration: the batched MADDPG (hand-written gradients) against the same
-   batched update through autograd (the update before its gradients were written out) and the per-agent loop (``maddpg_loop``), as ratios.
+   batched update through autograd (the update before its gradients were written out) and the per-agent loop
+   (``maddpg_loop``), as ratios.
 3. Environment throughput (agent-steps per second, random actions) against PettingZoo MPE2 ``simple_spread_v3``
    with N = 9 and continuous actions, as a ratio.
 4. The allocator setting of the training processes (``train.hold_freed_memory``): ``paper``'s CR-MARL stack of
