@@ -30,3 +30,55 @@ def test_any_number_of_agents_and_radius(n):
     assert np.isfinite(list(rewards.values())).all()
     with pytest.raises(RuntimeError, match="reset"):
         env.step({})
+
+
+def test_tuned_config_gives_the_reward_that_learns(params):
+    from replicate.pettingzoo_env import parallel_env
+
+    env = parallel_env(region="square", config="tuned")
+    assert env.core.union_credit == "difference" and env.reward_scale == params.configs["tuned"].reward_scale
+    assert env.core.cr.c2 == params.configs["tuned"].union_weight and env.core.fence is not None
+    plain = parallel_env(region="square", config="tuned", union_credit="shared", geofence=None)
+    assert plain.core.union_credit == "shared" and plain.core.fence is None  # a keyword overrides the config
+    obs, infos = env.reset(seed=0)
+    assert 0.0 <= infos["buoy_0"]["coverage"] <= 1.0, "coverage is in the reset infos too"
+    _, rewards, *_ = env.step({a: np.zeros(2) for a in env.agents})
+    unscaled = parallel_env(region="square", config="tuned", reward_scale=1.0)
+    unscaled.reset(seed=0)
+    _, raw, *_ = unscaled.step({a: np.zeros(2) for a in unscaled.agents})
+    assert rewards["buoy_0"] == pytest.approx(raw["buoy_0"] * params.configs["tuned"].reward_scale)
+
+
+def test_spaces_are_bounded_and_hold_every_observation_and_state():
+    from replicate.pettingzoo_env import parallel_env
+
+    env = parallel_env(region="rectangle", observation="position_velocity", episode_length=40)
+    assert np.isfinite(env.observation_space("buoy_0").low).all()
+    assert env.state_space.shape == env.state().shape == (4 * 9,)
+    obs, _ = env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    while env.agents:
+        push = np.sign(rng.normal(size=2))  # flat out in one direction per episode: the farthest a buoy gets
+        obs, *_ = env.step({a: push for a in env.agents})
+        assert all(env.observation_space(a).contains(o) for a, o in obs.items())
+        assert env.state_space.contains(env.state())
+
+
+def test_aec_env_passes_the_api_test():
+    from pettingzoo.test import api_test
+
+    from replicate.pettingzoo_env import env
+
+    api_test(env(region="square", config="tuned", episode_length=20), num_cycles=30)
+
+
+def test_torchrl_sees_the_coverage_info():
+    torchrl = pytest.importorskip("torchrl", reason="torchrl is an optional extra (pip install .[bench])")
+    from torchrl.envs.libs.pettingzoo import PettingZooWrapper
+    from torchrl.envs.utils import check_env_specs
+
+    from replicate.pettingzoo_env import parallel_env
+
+    wrapped = PettingZooWrapper(parallel_env(region="square", config="tuned", episode_length=10), use_mask=True)
+    check_env_specs(wrapped)
+    assert torchrl is not None

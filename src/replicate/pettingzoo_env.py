@@ -26,29 +26,51 @@ from .regions import Region, make_region
 PACKAGE_PARAMS = Path(__file__).resolve().parents[2] / "params.yaml"
 
 
+class Unset:
+    """The default of an option whose ``None`` means something (no geofence, the paper's c2)."""
+
+
+UNSET = Unset()
+
+
 class CoverageParallelEnv(ParallelEnv):
     """PettingZoo parallel API over one ``CoverageEnv``.
 
-    ``region`` is a name in params.yaml or a ``Region``; ``n_agents``, ``radius``, ``episode_length`` override
-    params.yaml; ``reward`` is ``"sw"``, ``"cr"`` or ``None``; ``observation`` ``"position"`` or
-    ``"position_velocity"``; ``geofence`` in metres or ``None``. Infos carry the fast-path coverage fraction.
+    ``region`` is a name in params.yaml or a ``Region``. ``config`` (``"paper"`` or ``"tuned"``) takes a
+    configuration's reward options and world bounds from params.yaml: its observation, geofence, reward scale,
+    union credit and union weight (``config="tuned"`` is the CR reward that learns, see ``docs/TUNING.md``); the
+    keyword arguments override them one by one. ``n_agents``, ``radius``, ``episode_length`` override the world;
+    ``reward`` is ``"sw"``, ``"cr"`` or ``None``. Infos carry the coverage fraction (fast path) from the reset on,
+    so wrappers that build their specs from ``reset()`` see it. Observations and the ``state()`` are bounded: no
+    buoy can get further than T steps at top speed from the region (or past the geofence).
     """
 
-    metadata = {"name": "buoy_coverage_v0", "render_modes": [], "is_parallelizable": True}
+    metadata = {"name": "buoy_coverage_v1", "render_modes": [], "is_parallelizable": True}
 
     def __init__(
         self,
         region: str | Region = "square",
         *,
+        config: str | None = None,
         n_agents: int | None = None,
         radius: float | None = None,
         reward: str | None = "cr",
-        observation: str = "position",
-        geofence: float | None = None,
+        observation: str | None = None,
+        geofence: float | None | Unset = UNSET,
+        reward_scale: float | None = None,
+        union_credit: str | None = None,
+        union_weight: float | None | Unset = UNSET,
         episode_length: int | None = None,
         params: Params | None = None,
     ):
         params = params or load_params(PACKAGE_PARAMS)
+        algo = params.configs[config] if config is not None else None
+
+        def pick(given, key: str, default):  # an option given, else the config's, else the paper's default
+            if given is not None and given is not UNSET:
+                return given
+            return getattr(algo, key) if algo is not None else default
+
         world = region_world(params, region if isinstance(region, str) else None)
         if n_agents is not None:
             world = dataclasses.replace(world, n_agents=int(n_agents))
@@ -57,17 +79,29 @@ class CoverageParallelEnv(ParallelEnv):
         coverage = params.coverage if radius is None else dataclasses.replace(params.coverage, radius=float(radius))
         if isinstance(region, str):
             region = make_region(region, params.regions[region], world.region_area, root=PACKAGE_PARAMS.parent)
+        fence = geofence if geofence is not UNSET else (algo.geofence if algo is not None else None)
+        weight = union_weight if union_weight is not UNSET else (algo.union_weight if algo is not None else None)
+        cr = params.cr_reward if weight is None else dataclasses.replace(params.cr_reward, c2=float(weight))
+        self.reward_scale = float(pick(reward_scale, "reward_scale", 1.0))
         self.core = CoverageEnv(
-            region, world, coverage, n_envs=1, reward=reward, sw=params.sw_reward, cr=params.cr_reward,
-            observation=observation, geofence=geofence,
+            region, world, coverage, n_envs=1, reward=reward, sw=params.sw_reward, cr=cr,
+            observation=pick(observation, "observation", "position"), geofence=fence,
+            union_credit=pick(union_credit, "union_credit", "shared"),
         )
         self.possible_agents = [f"buoy_{i}" for i in range(world.n_agents)]
         self.agents: list[str] = []
         self.render_mode = None
+        self._bounds = reachable_bounds(self.core)
+        n = world.n_agents
+        lo, hi = self._bounds
+        self.state_space = spaces.Box(np.tile(lo, n).astype(np.float32), np.tile(hi, n).astype(np.float32),
+                                      dtype=np.float32)
 
     @functools.cache  # noqa: B019 - PettingZoo expects the same space object per agent
     def observation_space(self, agent: str) -> spaces.Box:
-        return spaces.Box(-np.inf, np.inf, shape=(self.core.obs_dim,), dtype=np.float32)
+        lo, hi = self._bounds
+        d = self.core.obs_dim
+        return spaces.Box(lo[:d].astype(np.float32), hi[:d].astype(np.float32), dtype=np.float32)
 
     @functools.cache  # noqa: B019
     def action_space(self, agent: str) -> spaces.Box:
@@ -81,7 +115,8 @@ class CoverageParallelEnv(ParallelEnv):
             self.core.seed(seed)
         obs = self.core.reset()
         self.agents = list(self.possible_agents)
-        return self._obs(obs), {a: {} for a in self.agents}
+        coverage = float(self.core.coverage_fraction()[0])
+        return self._obs(obs), {a: {"coverage": coverage} for a in self.agents}
 
     def step(self, actions: dict):
         if not self.agents:
@@ -92,7 +127,7 @@ class CoverageParallelEnv(ParallelEnv):
                 action[0, i] = np.asarray(actions[a], dtype=float)
         result = self.core.step(action)
         obs = self._obs(result.obs)
-        rewards = {a: float(result.reward[0, i]) for i, a in enumerate(self.possible_agents)}
+        rewards = {a: float(result.reward[0, i]) * self.reward_scale for i, a in enumerate(self.possible_agents)}
         truncated = bool(result.done)
         union = result.union_area[0]  # measured by the CR reward; NaN otherwise
         coverage = float(union / self.core.region.area if np.isfinite(union) else self.core.coverage_fraction()[0])
@@ -104,7 +139,33 @@ class CoverageParallelEnv(ParallelEnv):
         return obs, rewards, terminations, truncations, infos
 
     def state(self) -> np.ndarray:
-        return np.concatenate([self.core.pos[0].ravel(), self.core.vel[0].ravel()]).astype(np.float32)
+        """Every buoy's position and velocity, [x, y, vx, vy] per buoy: shape ``state_space.shape``."""
+        return np.concatenate([self.core.pos[0], self.core.vel[0]], axis=1).ravel().astype(np.float32)
 
     def close(self) -> None:
         pass
+
+
+def reachable_bounds(core: CoverageEnv) -> tuple[np.ndarray, np.ndarray]:
+    """Per-buoy bounds of [x, y, vx, vy]: a velocity component never exceeds the terminal speed of the MPE
+    update, v_max = sensitivity·dt / (mass·damping), so a buoy released in the region is at most T·v_max·dt
+    outside its box (or at the geofence)."""
+    w = core.world
+    v_max = w.sensitivity * w.dt / (w.mass * w.damping)
+    minx, miny, maxx, maxy = core.region.polygon.bounds
+    reach = w.episode_length * v_max * w.dt if core.fence is None else 0.0
+    lo, hi = (core.fence if core.fence is not None else (np.array([minx, miny]), np.array([maxx, maxy])))
+    return (np.concatenate([lo - reach, [-v_max, -v_max]]) - 1e-6,
+            np.concatenate([hi + reach, [v_max, v_max]]) + 1e-6)
+
+
+def parallel_env(**kwargs) -> CoverageParallelEnv:
+    """The PettingZoo convention's parallel constructor: ``parallel_env(region="bedok", config="tuned")``."""
+    return CoverageParallelEnv(**kwargs)
+
+
+def env(**kwargs):
+    """The same environment through PettingZoo's AEC API."""
+    from pettingzoo.utils.conversions import parallel_to_aec
+
+    return parallel_to_aec(parallel_env(**kwargs))
