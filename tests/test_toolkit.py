@@ -108,3 +108,45 @@ def test_cover_place_offline_names_the_alternative(tmp_path):
                stderr=subprocess.PIPE, text=True)
     assert proc.wait(timeout=300) == 2
     assert "--region FILE" in proc.stderr.read()
+
+
+def test_every_verb_works_from_any_folder(tmp_path):
+    """Outside the repository the defaults and the Bedok outline installed with the package are used."""
+    train = cli(*SMALL, "train", "--config", "tuned", "--method", "cr", "--region", "bedok", "--episodes", "20",
+                "--out", "X", "--no-progress", cwd=tmp_path, stderr=subprocess.PIPE, text=True)
+    assert train.wait(timeout=600) == 0, train.stderr.read()
+    assert (tmp_path / "X" / "actors.pt").exists()
+    lake = Polygon([(6.56, 46.50), (6.575, 46.502), (6.58, 46.51), (6.565, 46.512), (6.555, 46.505)])
+    gpd.GeoDataFrame({"name": ["lake"]}, geometry=[lake], crs="EPSG:4326").to_file(tmp_path / "lake.geojson")
+    cover = cli(*SMALL, "cover", "--region", "lake.geojson", "--episodes", "20", "--no-progress", cwd=tmp_path,
+                stderr=subprocess.PIPE, text=True)
+    assert cover.wait(timeout=600) == 0, cover.stderr.read()
+    assert (tmp_path / "runs" / "cover" / "summary.json").exists()
+
+
+def test_init_writes_the_defaults_once(tmp_path):
+    assert cli("init", str(tmp_path / "mine")).wait(timeout=300) == 0
+    written = tmp_path / "mine" / "params.yaml"
+    assert written.read_text() == (ROOT / "params.yaml").read_text()
+    assert load_params(written).train.episodes == load_params(ROOT / "params.yaml").train.episodes
+    again = cli("init", str(tmp_path / "mine"), stderr=subprocess.PIPE, text=True)
+    assert again.wait(timeout=300) == 2 and "--force" in again.stderr.read()
+
+
+def test_built_package_carries_the_defaults(tmp_path):
+    """`pip install .` installs copies of params.yaml and the Bedok outline inside the package."""
+    import shutil
+    import sys
+    import zipfile
+
+    source = tmp_path / "source"  # a copy: building in the repository would leave build/ behind
+    shutil.copytree(ROOT / "src", source / "src", symlinks=True, ignore=shutil.ignore_patterns("*.egg-info"))
+    for rel in ("pyproject.toml", "params.yaml", "data/bedok_outline.geojson"):
+        (source / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ROOT / rel, source / rel)
+    proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
+                           "-w", str(tmp_path), str(source)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    wheel = zipfile.ZipFile(next(tmp_path.glob("*.whl")))
+    assert wheel.read("replicate/defaults/params.yaml") == (ROOT / "params.yaml").read_bytes()
+    assert wheel.read("replicate/defaults/bedok_outline.geojson") == (ROOT / "data/bedok_outline.geojson").read_bytes()

@@ -291,7 +291,8 @@ def test_corrupt_and_mismatched_checkpoints_are_refused(params, regions, tmp_pat
 
 def cli(*args, **kw):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    return subprocess.Popen([sys.executable, "-m", "replicate.cli", *args], cwd=ROOT, env=env, **kw)
+    kw.setdefault("cwd", ROOT)
+    return subprocess.Popen([sys.executable, "-m", "replicate.cli", *args], env=env, **kw)
 
 
 SMALL = ["--set", "configs.tuned.n_envs=10", "--set", "configs.tuned.maddpg.learning_starts=500",

@@ -300,9 +300,25 @@ def cmd_tune(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_init(args: argparse.Namespace) -> int:
+    from .config import packaged
+
+    target = Path(args.dir) / "params.yaml"
+    if target.exists() and not args.force:
+        raise ConfigError(f"{target}: already exists; pass --force to replace it with the defaults")
+    if Path(args.dir).exists() and not Path(args.dir).is_dir():
+        raise ConfigError(f"{args.dir}: is a file; choose a folder")
+    artifacts.atomic_write_bytes(target, packaged("params.yaml").read_bytes())
+    print(f"wrote {target}: every value of the toolkit, commented; edit it and pass --params {target} (or run "
+          f"from {args.dir})")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="replicate", description=__doc__)
-    parser.add_argument("--params", default="params.yaml", help="parameters file (default: params.yaml)")
+    parser.add_argument("--params", default="params.yaml",
+                        help="parameters file (default: params.yaml of the working folder, else the defaults "
+                             "installed with the package; `replicate init` writes an editable copy)")
     parser.add_argument("--set", action="append", metavar="KEY=VALUE",
                         help="override a value of the parameters file, e.g. configs.tuned.n_envs=25 (repeatable)")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -367,6 +383,11 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--out", default=None, help="JSON of the best values (default: metrics/tuning/baselines.json, "
                                                "or tuning.method.result)")
     u.set_defaults(func=cmd_tune)
+
+    i = sub.add_parser("init", help="write an editable params.yaml with every default value into a folder")
+    i.add_argument("dir", nargs="?", default=".", help="folder (default: the working folder)")
+    i.add_argument("--force", action="store_true", help="replace a params.yaml already there")
+    i.set_defaults(func=cmd_init)
 
     m = sub.add_parser("animate", help="GIF of an evaluation episode of a run")
     m.add_argument("run")

@@ -21,6 +21,14 @@ import yaml
 DEFAULT_PARAMS = Path("params.yaml")
 
 
+def packaged(name: str) -> Path:
+    """A file installed with the package (``replicate/defaults/``): the repository's ``params.yaml`` and the
+    bundled Bedok outline, so that every command works from any folder after ``pip install``."""
+    from importlib.resources import files
+
+    return Path(str(files("replicate") / "defaults" / name))
+
+
 class ConfigError(ValueError):
     """A configuration value is unknown, missing or of the wrong type."""
 
@@ -512,10 +520,14 @@ def from_mapping(cls: type, data: Any, where: str = "params") -> Any:
 
 
 def load_params(path: str | Path = DEFAULT_PARAMS, overrides: Mapping[str, Any] | None = None) -> Params:
-    """Read and validate ``params.yaml``; ``overrides`` maps dotted keys to values (``train.episodes``)."""
+    """Read and validate ``params.yaml``; ``overrides`` maps dotted keys to values (``train.episodes``). The
+    default ``params.yaml`` is the one in the working folder, else the one installed with the package."""
     path = Path(path)
+    if path == DEFAULT_PARAMS and not path.exists():
+        path = packaged("params.yaml")
     if not path.exists():
-        raise ConfigError(f"{path}: no such parameters file")
+        raise ConfigError(f"{path}: no such parameters file; `replicate init DIR` writes an editable copy of the "
+                          "defaults")
     try:
         with open(path) as fh:
             raw = yaml.safe_load(fh)

@@ -13,17 +13,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from pathlib import Path
 
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from .config import Params, load_params, region_world
+from .config import Params, load_params, packaged, region_world
 from .env import CoverageEnv
 from .regions import Region, make_region
-
-PACKAGE_PARAMS = Path(__file__).resolve().parents[2] / "params.yaml"
 
 
 class Unset:
@@ -63,7 +60,7 @@ class CoverageParallelEnv(ParallelEnv):
         episode_length: int | None = None,
         params: Params | None = None,
     ):
-        params = params or load_params(PACKAGE_PARAMS)
+        params = params or load_params(packaged("params.yaml"))
         algo = params.configs[config] if config is not None else None
 
         def pick(given, key: str, default):  # an option given, else the config's, else the paper's default
@@ -78,7 +75,7 @@ class CoverageParallelEnv(ParallelEnv):
             world = dataclasses.replace(world, episode_length=int(episode_length))
         coverage = params.coverage if radius is None else dataclasses.replace(params.coverage, radius=float(radius))
         if isinstance(region, str):
-            region = make_region(region, params.regions[region], world.region_area, root=PACKAGE_PARAMS.parent)
+            region = make_region(region, params.regions[region], world.region_area)
         fence = geofence if geofence is not UNSET else (algo.geofence if algo is not None else None)
         weight = union_weight if union_weight is not UNSET else (algo.union_weight if algo is not None else None)
         cr = params.cr_reward if weight is None else dataclasses.replace(params.cr_reward, c2=float(weight))

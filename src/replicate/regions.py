@@ -207,7 +207,12 @@ def make_region(name: str, spec, area: float, root: str | Path = ".") -> Region:
         return region
     if spec.path is None:
         raise RegionError(f"regions.{name}: a file region needs a path")
-    return region_from_file(Path(root) / spec.path, name=name, area=area)
+    path = Path(root) / spec.path
+    if not path.exists() and (Path(spec.path).name == "bedok_outline.geojson"):
+        from .config import packaged
+
+        path = packaged("bedok_outline.geojson")  # outside the repository: the outline installed with the package
+    return region_from_file(path, name=name, area=area)
 
 
 def signed_distance(polygon: Polygon, xy: np.ndarray) -> np.ndarray:
