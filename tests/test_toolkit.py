@@ -76,6 +76,44 @@ def test_act_command_with_real_coordinates(small_run, regions, tmp_path):
     np.testing.assert_allclose([got[f"buoy_{i}"] for i in range(9)], act(tmp_path / "policy.pt", sim), atol=1e-5)
 
 
+def test_act_takes_negative_numbers_and_standard_input(small_run, regions, tmp_path):
+    export_policy(small_run / "actors.pt", regions["square"], tmp_path / "policy.pt")
+    sim = np.random.default_rng(1).uniform(-1.5, -0.5, (9, 4))  # every value negative
+    inline = ";".join(",".join(f"{v:.6f}" for v in row) for row in sim)
+    proc = cli("act", "--policy", str(tmp_path / "policy.pt"), "--obs", inline, stdout=subprocess.PIPE, text=True)
+    assert proc.wait(timeout=300) == 0
+    piped = subprocess.run([*cli_argv(), "act", "--policy", str(tmp_path / "policy.pt"), "--obs-file", "-"],
+                           input=json.dumps(np.round(sim, 6).tolist()), capture_output=True, text=True, cwd=ROOT,
+                           timeout=300)
+    assert piped.returncode == 0, piped.stderr
+    assert json.loads(piped.stdout) == json.loads(proc.stdout.read())
+    expected = act(tmp_path / "policy.pt", np.round(sim, 6))
+    np.testing.assert_allclose([json.loads(piped.stdout)[f"buoy_{i}"] for i in range(9)], expected, atol=1e-5)
+
+
+def cli_argv() -> list[str]:
+    import sys
+
+    return [sys.executable, "-m", "replicate.cli"]
+
+
+def test_one_cli_shape_for_every_verb(small_run, tmp_path):
+    """A run is a positional RUN for evaluate, export and animate; --set works before or after the verb."""
+    out, observes = tmp_path / "m.json", "configs.tuned.observation=position_velocity"  # as small_run does
+    assert cli("evaluate", str(small_run), "--set", observes, "--set", "evaluate.episodes=3", "--out",
+               str(out)).wait(600) == 0
+    assert json.loads(out.read_text())["coverage"]["n"] == 3
+    assert cli("--set", observes, "evaluate", str(small_run), "--set", "evaluate.episodes=4",
+               "--out", str(out)).wait(600) == 0
+    assert json.loads(out.read_text())["coverage"]["n"] == 4  # both --set, before and after the verb, apply
+    assert cli("export", str(small_run), "--out", str(tmp_path / "p.pt")).wait(600) == 0
+    for verb in ("train", "evaluate", "cover", "animate", "tune", "init", "export", "act"):
+        text = subprocess.run([*cli_argv(), verb, "--help"], capture_output=True, text=True, cwd=ROOT).stdout
+        assert "--set KEY=VALUE" in text and "--params FILE" in text, verb
+        if verb in ("train", "cover"):
+            assert "(default: 0)" in text and "episodes" in text, verb
+
+
 def test_animation_has_one_frame_per_step(small_run, params, regions, tmp_path):
     gif = animate_run(small_run, small_params(), regions["square"], tmp_path / "episode.gif")
     with Image.open(gif) as im:

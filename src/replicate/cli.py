@@ -163,7 +163,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     params = load_params(args.params, overrides(args.set))
     if (args.run is None) == (args.baseline is None):
-        raise ConfigError("give exactly one of --run RUN_DIR or --baseline NAME")
+        raise ConfigError("give exactly one of a run folder (`replicate evaluate RUN`) or --baseline NAME")
     if args.baseline is not None and not args.region:
         raise ConfigError("--baseline needs --region")
     region = run_region(args.run, params, args.region) if args.run is not None else \
@@ -237,6 +237,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     from .export import export_policy
 
     params = load_params(args.params, overrides(args.set))
+    if args.run is None:
+        raise ConfigError("export needs a run folder: `replicate export RUN`")
     region = run_region(args.run, params, args.region)
     out = Path(args.out or Path(args.run) / "policy.pt")
     meta = export_policy(Path(args.run) / "actors.pt", region, out, params.world.sensitivity)
@@ -255,7 +257,8 @@ def cmd_act(args: argparse.Namespace) -> int:
         if args.obs is not None:
             obs = np.array([[float(v) for v in row.split(",")] for row in args.obs.split(";")])
         else:
-            obs = np.array(json.loads(Path(args.obs_file).read_text()), dtype=float)
+            text = sys.stdin.read() if args.obs_file == "-" else Path(args.obs_file).read_text()
+            obs = np.array(json.loads(text), dtype=float)
     except (ValueError, TypeError) as exc:
         raise ConfigError("observations must be one row of numbers per buoy, every row as long (--obs "
                           f"\"x,y;x,y;...\" or --obs-file with an [N, obs_dim] list): {exc}") from None
@@ -314,23 +317,46 @@ def cmd_init(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="replicate", description=__doc__)
-    parser.add_argument("--params", default="params.yaml",
-                        help="parameters file (default: params.yaml of the working folder, else the defaults "
-                             "installed with the package; `replicate init` writes an editable copy)")
-    parser.add_argument("--set", action="append", metavar="KEY=VALUE",
-                        help="override a value of the parameters file, e.g. configs.tuned.n_envs=25 (repeatable)")
-    sub = parser.add_subparsers(dest="command", required=True)
+def common_options(suppress: bool) -> argparse.ArgumentParser:
+    """``--params`` and ``--set``, accepted before the verb and after it (``suppress``: a verb's copy leaves the
+    value given before the verb alone unless given again)."""
+    p = argparse.ArgumentParser(add_help=False)
+    after = "_after_verb" if suppress else ""
+    p.add_argument("--params", dest=f"params{after}", metavar="FILE", default=None if suppress else "params.yaml",
+                   help="parameters file (params.yaml of the working folder, else the defaults installed with the "
+                        "package; `replicate init` writes an editable copy)")
+    p.add_argument("--set", dest=f"set{after}", action="append", metavar="KEY=VALUE", default=None,
+                   help="override a value of the parameters file, e.g. configs.tuned.n_envs=25 (repeatable)")
+    return p
 
-    t = sub.add_parser("train", help="train MADDPG (SW-MARL or CR-MARL) on a region")
+
+class Help(argparse.HelpFormatter):
+    """Help that names a default where there is one worth naming (not None, not a switch that is off)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        named = action.default is not None and action.default is not False and action.default != argparse.SUPPRESS
+        if named and "%(default)" not in text and action.option_strings and not text.endswith(")"):
+            text += " (default: %(default)s)"
+        return text
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="replicate", description=__doc__, parents=[common_options(False)])
+    sub = parser.add_subparsers(dest="command", required=True)
+    verb = dict(parents=[common_options(True)], formatter_class=Help)
+    regions = "square, rectangle, bedok (params.yaml regions), or a vector file in any CRS"
+
+    t = sub.add_parser("train", help="train MADDPG (SW-MARL or CR-MARL) on a region", **verb)
     t.add_argument("--config", default="paper", help="configuration in params.yaml: paper or tuned")
     t.add_argument("--method", default="cr", help="sw (swarming, shared reward) or cr (coverage range)")
-    t.add_argument("--region", default="square", help="square, rectangle, bedok, or a vector file")
-    t.add_argument("--episodes", type=int, default=None, help="default: train.episodes of params.yaml")
-    t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--out", default=None, help="run folder (default runs/CONFIG-METHOD-REGION-sSEED)")
-    t.add_argument("--checkpoint-every", type=int, default=None, help="episodes between checkpoints")
+    t.add_argument("--region", default="square", help=regions)
+    t.add_argument("--episodes", type=int, default=None,
+                   help="training episodes, a multiple of the config's n_envs (default: train.episodes, 10,000)")
+    t.add_argument("--seed", type=int, default=0, help="training seed, 0 to 2**32 - 1")
+    t.add_argument("--out", default=None, help="run folder (default: runs/CONFIG-METHOD-REGION-sSEED)")
+    t.add_argument("--checkpoint-every", type=int, default=None,
+                   help="episodes between resumable checkpoints (default: train.checkpoint_every)")
     t.add_argument("--resume", default=None, metavar="RUN",
                    help="continue the interrupted run in folder RUN from its checkpoint, with the settings it was "
                         "started with (nothing else needed)")
@@ -339,67 +365,88 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_train)
 
-    e = sub.add_parser("evaluate", help="SPEC §8 metrics of a run or a baseline, as JSON")
-    e.add_argument("--run", default=None, help="a run folder written by `replicate train`")
-    e.add_argument("--baseline", default=None, help="random, naive, lloyd or lloyd_converged")
-    e.add_argument("--region", default=None, help="region (default: the run's own)")
-    e.add_argument("--config", default="paper", help="physics/T of this config for a baseline")
-    e.add_argument("--out", default=None, help="output JSON")
+    e = sub.add_parser("evaluate", help="SPEC §8 metrics of a run or a baseline, as JSON", **verb)
+    e.add_argument("run", nargs="?", default=None, help="a run folder written by `replicate train`")
+    e.add_argument("--run", dest="run_option", default=None, help=argparse.SUPPRESS)  # the older spelling
+    e.add_argument("--baseline", default=None,
+                   help="instead of a run: random, naive, lloyd, lloyd_converged (hand-set gains)")
+    e.add_argument("--region", default=None, help=f"{regions} (default: the run's own)")
+    e.add_argument("--config", default="paper", help="a baseline runs with this config's physics and T")
+    e.add_argument("--out", default=None,
+                   help="output JSON (default: RUN/metrics.json, or metrics/baseline-NAME-REGION.json)")
     e.set_defaults(func=cmd_evaluate)
 
-    c = sub.add_parser("cover", help="train CR-MARL on any waterbody and compare with the Lloyd layout")
+    c = sub.add_parser("cover", help="train CR-MARL on any waterbody and compare with the Lloyd layout", **verb)
     c.add_argument("--region", default=None, help="vector file (any CRS) or OSM XML (.osm) of the outline")
     c.add_argument("--place", default=None, help="an OSM place name (needs the network)")
     c.add_argument("--name", default=None, help="the water feature's name (OSM place or .osm file)")
-    c.add_argument("--episodes", type=int, default=2000)
-    c.add_argument("--seed", type=int, default=0)
-    c.add_argument("--config", default="tuned")
-    c.add_argument("--n-agents", type=int, default=None, help="number of buoys (default: world.n_agents)")
+    c.add_argument("--episodes", type=int, default=2000, help="training episodes (rounded to the config's n_envs)")
+    c.add_argument("--seed", type=int, default=0, help="training seed, 0 to 2**32 - 1")
+    c.add_argument("--config", default="tuned", help="configuration in params.yaml")
+    c.add_argument("--n-agents", type=int, default=None, help="number of buoys, 1 to 200 (default: world.n_agents)")
     c.add_argument("--radius-m", type=float, default=None,
                    help="real scale: coverage radius in metres (default: the paper's 9 m² scale)")
-    c.add_argument("--out", default="runs/cover", help="output folder (default runs/cover)")
+    c.add_argument("--out", default="runs/cover", help="output folder")
     c.add_argument("--force", action="store_true", help="replace what --out holds (the folder is cleared first)")
-    c.add_argument("--no-progress", action="store_true")
+    c.add_argument("--no-progress", action="store_true", help="no progress bars")
     c.set_defaults(func=cmd_cover)
 
-    x = sub.add_parser("export", help="export a run's actors as one TorchScript file with metadata")
-    x.add_argument("--run", required=True)
-    x.add_argument("--region", default=None, help="region (default: the run's own)")
-    x.add_argument("--out", default=None, help="default RUN/policy.pt")
+    x = sub.add_parser("export", help="export a run's actors as one TorchScript file with metadata", **verb)
+    x.add_argument("run", nargs="?", default=None, help="a run folder written by `replicate train`")
+    x.add_argument("--run", dest="run_option", default=None, help=argparse.SUPPRESS)
+    x.add_argument("--region", default=None, help=f"{regions} (default: the run's own)")
+    x.add_argument("--out", default=None, help="TorchScript file (default: RUN/policy.pt)")
     x.set_defaults(func=cmd_export)
 
-    a = sub.add_parser("act", help="map observations to commands with an exported policy (prints JSON)")
-    a.add_argument("--policy", required=True)
+    a = sub.add_parser("act", help="map observations to commands with an exported policy (prints JSON)", **verb)
+    a.add_argument("--policy", required=True, help="a file written by `replicate export`")
     group = a.add_mutually_exclusive_group(required=True)
-    group.add_argument("--obs", help='observations "x,y;x,y;..." one buoy per ";"')
-    group.add_argument("--obs-file", help="JSON file with an [N, obs_dim] list")
+    group.add_argument("--obs", help='observations "x,y;x,y;..." one buoy per ";" (negative numbers welcome)')
+    group.add_argument("--obs-file", help="JSON file with an [N, obs_dim] list, or - for standard input")
     a.add_argument("--real", action="store_true", help="observations are UTM metres (m/s), not simulation units")
     a.set_defaults(func=cmd_act)
 
-    u = sub.add_parser("tune", help="Optuna studies: the baselines' gains, or a method's training values")
+    u = sub.add_parser("tune", help="Optuna studies: the baselines' gains, or a method's training values", **verb)
     u.add_argument("what", choices=("baselines", "method"),
                    help="baselines: every gain of naive swarming and Lloyd per region (tuning.baselines); method: "
                         "tuning.method's training values (trials train on the tuning seeds)")
-    u.add_argument("--out", default=None, help="JSON of the best values (default: metrics/tuning/baselines.json, "
-                                               "or tuning.method.result)")
+    u.add_argument("--out", default=None,
+                   help="JSON of the best values (default: metrics/tuning/baselines.json, or tuning.method.result)")
     u.set_defaults(func=cmd_tune)
 
-    i = sub.add_parser("init", help="write an editable params.yaml with every default value into a folder")
-    i.add_argument("dir", nargs="?", default=".", help="folder (default: the working folder)")
+    i = sub.add_parser("init", help="write an editable params.yaml with every default value into a folder", **verb)
+    i.add_argument("dir", nargs="?", default=".", help="folder")
     i.add_argument("--force", action="store_true", help="replace a params.yaml already there")
     i.set_defaults(func=cmd_init)
 
-    m = sub.add_parser("animate", help="GIF of an evaluation episode of a run")
-    m.add_argument("run")
-    m.add_argument("--region", default=None)
-    m.add_argument("--seed", type=int, default=None)
-    m.add_argument("--out", default=None, help="default RUN/episode.gif")
+    m = sub.add_parser("animate", help="GIF of an evaluation episode of a run", **verb)
+    m.add_argument("run", help="a run folder written by `replicate train`")
+    m.add_argument("--region", default=None, help=f"{regions} (default: the run's own)")
+    m.add_argument("--seed", type=int, default=None, help="starts of the episode (default: evaluate.seed)")
+    m.add_argument("--out", default=None, help="GIF file (default: RUN/episode.gif)")
     m.set_defaults(func=cmd_animate)
     return parser
 
 
+def glued_values(argv: list[str]) -> list[str]:
+    """``--obs -1.2,-1.2;...`` → ``--obs=-1.2,-1.2;...``: argparse takes a value that starts with a minus sign for
+    an option."""
+    out, it = [], iter(argv)
+    for arg in it:
+        if arg == "--obs":
+            value = next(it, None)
+            out.append(arg if value is None else f"--obs={value}")
+        else:
+            out.append(arg)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(glued_values(sys.argv[1:] if argv is None else argv))
+    if getattr(args, "run_option", None) is not None:
+        args.run = args.run or args.run_option
+    args.params = args.params_after_verb or args.params  # --params and --set work before or after the verb
+    args.set = (args.set or []) + (args.set_after_verb or [])
     warnings.simplefilter("default")
     try:
         return args.func(args)
