@@ -227,11 +227,11 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
     params = load_params(params_path)
     tuned = json.loads(Path(tuned_baselines).read_text())
     jobs = []
-    known = params.all_configs()
     for run in sorted(p for p in Path(runs_dir).iterdir() if (p / "actors.pt").exists()):
         ident = json.loads((run / "run.json").read_text())
-        if ident["config"] not in known:  # e.g. the runs of an ablation change since removed from params.yaml
-            print(f"evaluate: skipped {run.name}: its config {ident['config']!r} is not in params.yaml")
+        why = not_in_matrix(params, ident, run)
+        if why:  # a run of older code or settings, of a seed that chose values, of an ablation since removed
+            print(f"evaluate: skipped {run.name}: {why}")
             continue
         curve = read_curve(run / CURVE)
         artifacts.write_csv(metrics_dir / "curves" / f"{run.name}.csv", ["episode", "team_reward", "coverage"],
@@ -252,6 +252,30 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
     summary = split_ablation(summary, params)
     artifacts.write_json(metrics_dir / "summary.json", summary)
     return summary
+
+
+def not_in_matrix(params: Params, ident: dict, run: Path) -> str | None:
+    """Why the finished run ``run`` (its ``run.json`` is ``ident``) is not one the pipeline reports, or None: its
+    config and seed must be in the matrix (``train.seeds``, ``ablation.seeds``), and its identity (code version,
+    settings, region, episodes) the one params.yaml gives now."""
+    from .pipeline import cell_seeds
+    from .train import finished_run, run_identity
+
+    config = ident.get("config")
+    if config not in params.all_configs():
+        return f"its config {config!r} is not in params.yaml"
+    if config in params.configs and config not in params.train.seeds:
+        return f"params.yaml train.seeds has no seeds for {config!r}"
+    if ident.get("seed") not in cell_seeds(params, config):
+        return f"seed {ident.get('seed')} is not among {config}'s reported seeds"
+    region = make_region(ident["region"], params.regions[ident["region"]], params.world.region_area) \
+        if ident.get("region") in params.regions else None
+    if region is None:
+        return f"its region {ident.get('region')!r} is not in params.yaml"
+    rc = run_config(params, config, ident["method"], ident["region"])
+    if finished_run(run, run_identity(rc, region, params.train.episodes, ident["seed"])) is None:
+        return "it was trained with other code or settings than params.yaml gives now"
+    return None
 
 
 def split_ablation(summary: dict, params: Params) -> dict:

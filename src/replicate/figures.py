@@ -12,7 +12,7 @@ import numpy as np
 from . import plots
 from .config import load_params
 from .env import start_patch
-from .evaluate import BASELINES, read_curve
+from .evaluate import BASELINES, not_in_matrix, read_curve
 from .metrics import coverage_ceiling
 from .regions import make_region
 from .train import CURVE
@@ -35,8 +35,8 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
     by_group: dict[tuple, list] = {}
     for run in runs:
         ident = json.loads((run / "run.json").read_text())
-        if ident["config"] not in params.configs:  # ablation runs: summarised by fig_ablation_*
-            continue
+        if ident["config"] not in params.configs or not_in_matrix(params, ident, run):
+            continue  # ablation runs (fig_ablation_*), and runs the pipeline does not report (see evaluate)
         by_group.setdefault((ident["config"], ident["method"], ident["region"]), []).append(run)
 
     curves_of = {key: [read_curve(r / CURVE) for r in sorted(group)] for key, group in by_group.items()}
