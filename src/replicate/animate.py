@@ -16,7 +16,7 @@ from .train import load_actors
 
 
 def animate_run(run_dir: str | Path, params: Params, region: Region, out: str | Path, seed: int | None = None,
-                fps: int = 10) -> Path:
+                fps: int = 10, progress: bool = False) -> Path:
     """Roll out the run's deterministic actors for one episode and write it as a GIF (atomically)."""
     from matplotlib.animation import FuncAnimation, PillowWriter
     from matplotlib.patches import Polygon as MplPolygon
@@ -59,8 +59,13 @@ def animate_run(run_dir: str | Path, params: Params, region: Region, out: str | 
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile(dir=out.parent, prefix=f".{out.name}.", suffix=".gif", delete=False) as tmp:
         tmp_path = Path(tmp.name)
+    from tqdm.auto import tqdm
+
     try:
-        anim.save(tmp_path, writer=PillowWriter(fps=fps))
+        with tqdm(total=len(trace), desc=f"drawing {out.name}", unit="frame", disable=not progress,
+                  leave=False) as bar:
+            anim.save(tmp_path, writer=PillowWriter(fps=fps), progress_callback=lambda i, n: bar.update(1))
+        tmp_path.chmod(0o644)
         tmp_path.replace(out)
     finally:
         tmp_path.unlink(missing_ok=True)

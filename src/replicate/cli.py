@@ -174,9 +174,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if out.is_dir():
         raise ConfigError(f"--out {out}: is a folder; give the path of a JSON file")
     if args.run is not None:
-        result = evaluate_run(args.run, params, region)
+        result = evaluate_run(args.run, params, region, progress=True)
     else:
-        result = evaluate_baseline(args.baseline, params, region, args.config)
+        result = evaluate_baseline(args.baseline, params, region, args.config, progress=True)
     artifacts.write_json(out, result)
     cov = result["coverage"]
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f}, {cov['n']} episodes); wrote {out}")
@@ -275,7 +275,7 @@ def cmd_animate(args: argparse.Namespace) -> int:
 
     params = load_params(args.params, overrides(args.set))
     region = run_region(args.run, params, args.region)
-    out = animate_run(args.run, params, region, args.out or Path(args.run) / "episode.gif", args.seed)
+    out = animate_run(args.run, params, region, args.out or Path(args.run) / "episode.gif", args.seed, progress=True)
     print(f"wrote {out}")
     return 0
 

@@ -37,11 +37,12 @@ BASELINES = ("lloyd_converged", "lloyd_tuned", "lloyd", "naive_tuned", "naive", 
 PAPER_START = StartsConfig("corner")
 
 
-def rollout(env: CoverageEnv, policy, steps: int, seed: int, starts: StartsConfig = PAPER_START) -> dict:
+def rollout(env: CoverageEnv, policy, steps: int, seed: int, starts: StartsConfig = PAPER_START,
+            bar=None) -> dict:
     """Run ``policy`` for ``steps`` from a reset with ``seed`` at ``starts.start``, losing ``starts.lose`` buoys
     after half the steps (drawn from a generator of ``seed``): positions at every step [steps + 1, E, N, 2],
     the live buoys' last positions [E, N_live, 2], and each agent's return under the environment's reward [E, N]
-    (zeros when it has none)."""
+    (zeros when it has none). ``bar``, a tqdm bar, counts the steps."""
     env.reset(seed, start=starts.start)
     loss_rng = np.random.default_rng([seed, 1])
     trace = [env.pos.copy()]
@@ -51,16 +52,18 @@ def rollout(env: CoverageEnv, policy, steps: int, seed: int, starts: StartsConfi
             env.lose(starts.lose, loss_rng)
         returns += env.step(policy(env)).reward
         trace.append(env.pos.copy())
+        if bar is not None:
+            bar.update(1)
     return {"positions": np.stack(trace), "live": env.live_positions().copy(), "returns": returns}
 
 
-def robustness(env: CoverageEnv, policy, params: Params, region: Region, rc: RunConfig) -> dict:
+def robustness(env: CoverageEnv, policy, params: Params, region: Region, rc: RunConfig, bar=None) -> dict:
     """Mean exact coverage of ``policy`` under every scenario of ``evaluate.robustness``, each from the
     evaluation seed: {scenario: {"coverage", "steps"}}."""
     out = {}
     for name, starts in params.evaluate.robustness.items():
         steps = round(starts.horizon * rc.world.episode_length)
-        live = rollout(env, policy, steps, params.evaluate.seed, starts)["live"]
+        live = rollout(env, policy, steps, params.evaluate.seed, starts, bar)["live"]
         cov = metrics.coverage_fraction(region.polygon, live, rc.coverage.radius, rc.coverage.edges)
         out[name] = {"coverage": float(cov.mean()), "steps": steps}
     return out
@@ -103,7 +106,7 @@ def read_curve(path: str | Path) -> dict[str, np.ndarray]:
 
 
 def evaluate_run(run_dir: str | Path, params: Params, region: Region, actors: str = "actors.pt",
-                 as_config: str | None = None) -> dict:
+                 as_config: str | None = None, progress: bool = False) -> dict:
     """Metrics of a finished run: deterministic evaluation plus convergence from its training curve.
     ``actors``/``as_config`` evaluate another actors file of the run and file it under another config name
     (the last actors of a selecting run are its "without selection" ablation)."""
@@ -116,9 +119,10 @@ def evaluate_run(run_dir: str | Path, params: Params, region: Region, actors: st
     if meta["observation"] != rc.algo.observation:
         raise ConfigError(f"{run_dir}: actors observe {meta['observation']!r}, params say {rc.algo.observation!r}")
     policy = actor_policy(net, meta["observation"])
-    pos = rollout(env, policy, rc.world.episode_length, ev.seed)["positions"]
-    out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
-    out["robustness"] = robustness(env, policy, params, region, rc)
+    with steps_bar(params, rc, progress, f"evaluating {Path(run_dir).name}") as bar:
+        pos = rollout(env, policy, rc.world.episode_length, ev.seed, bar=bar)["positions"]
+        out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
+        out["robustness"] = robustness(env, policy, params, region, rc, bar)
     curve = read_curve(run_dir / CURVE)
     conv = {str(f): metrics.convergence_episode(curve["team_reward"], ev.converge_window, f * ev.converge_tolerance,
                                                 ev.converge_final) for f in (1.0, *params.report.sensitivity)}
@@ -166,8 +170,17 @@ def baseline_policy(name: str, params: Params, tuned: dict | None = None) -> bas
     return baselines.lloyd(LloydConfig(**tuned["gains"], converged_steps=ev.lloyd.converged_steps))
 
 
+def steps_bar(params: Params, rc: RunConfig, progress: bool, what: str, steps: int | None = None):
+    """A progress bar over the environment steps of an evaluation and its robustness scenarios."""
+    from tqdm.auto import tqdm
+
+    scenarios = sum(round(s.horizon * rc.world.episode_length) for s in params.evaluate.robustness.values())
+    total = (rc.world.episode_length if steps is None else steps) + scenarios
+    return tqdm(total=total, desc=what, unit="step", disable=not progress, leave=False)
+
+
 def evaluate_baseline(name: str, params: Params, region: Region, config: str = "paper",
-                      tuned: dict | None = None) -> dict:
+                      tuned: dict | None = None, progress: bool = False) -> dict:
     """Metrics of a baseline with the same physics, T and start as the runs of ``config``, and under the
     robustness scenarios (but the converged Lloyd layout, which is a limit, not a policy under a horizon)."""
     if name not in BASELINES:
@@ -177,10 +190,13 @@ def evaluate_baseline(name: str, params: Params, region: Region, config: str = "
     env = eval_env(region, rc, ev.episodes)
     steps = ev.lloyd.converged_steps if name == "lloyd_converged" else rc.world.episode_length
     policy = baseline_policy(name, params, tuned)
-    pos = rollout(env, policy, steps, ev.seed)["positions"]
-    out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
-    if name != "lloyd_converged":
-        out["robustness"] = robustness(env, policy, params, region, rc)
+    with steps_bar(params, rc, progress, f"evaluating {name}", steps) as bar:
+        if name == "lloyd_converged":
+            bar.total = steps
+        pos = rollout(env, policy, steps, ev.seed, bar=bar)["positions"]
+        out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
+        if name != "lloyd_converged":
+            out["robustness"] = robustness(env, policy, params, region, rc, bar)
     if tuned is not None:
         out["gains"] = tuned["gains"]
     out.update(kind="baseline", baseline=name, region=region.name, steps=steps, config=config)

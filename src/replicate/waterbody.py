@@ -80,8 +80,8 @@ def cover(
     n_envs = rc.algo.n_envs
     episodes = max(n_envs, episodes - episodes % n_envs)
     train(rc, region, episodes, seed, out / "run", params.train.checkpoint_every, resume=False, progress=progress)
-    method = evaluate_run(out / "run", params, region)
-    lloyd = evaluate_baseline("lloyd_converged", params, region, config)
+    method = evaluate_run(out / "run", params, region, progress=progress)
+    lloyd = evaluate_baseline("lloyd_converged", params, region, config, progress=progress)
     c = params.coverage
     xy = method["example"]["final_positions"]
     patch = start_patch(region.polygon, params.world.start_patch)
