@@ -9,6 +9,13 @@ ROOT = Path(__file__).resolve().parents[1]
 os.environ.setdefault("DVC_NO_ANALYTICS", "1")
 
 
+def pytest_configure(config):
+    """The tests train in this process: the settings of a training process (one thread, as the references)."""
+    from replicate.train import training_process
+
+    training_process()
+
+
 @pytest.fixture(scope="session")
 def params():
     from replicate.config import load_params

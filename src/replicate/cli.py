@@ -448,6 +448,10 @@ def main(argv: list[str] | None = None) -> int:
     args.params = args.params_after_verb or args.params  # --params and --set work before or after the verb
     args.set = (args.set or []) + (args.set_after_verb or [])
     warnings.simplefilter("default")
+    if args.command in ("train", "cover", "tune"):
+        from .train import training_process
+
+        training_process()
     try:
         return args.func(args)
     except (ConfigError, RegionError, CheckpointError, OSError, ValueError) as exc:

@@ -17,7 +17,7 @@ from pathlib import Path
 from . import artifacts
 from .config import load_params, run_config, selection_only
 from .regions import make_region
-from .train import core_seconds, finished_run, run_identity, train_runs
+from .train import core_seconds, finished_run, run_identity, train_runs, training_process
 
 
 def run_name(config: str, method: str, region: str, seed: int) -> str:
@@ -28,6 +28,7 @@ def _train_cell(job: dict) -> list[dict]:
     """Train the seeds of one (config, method, region) cell. A run already finished with these exact settings is
     kept (runs/ persists across repro); an interrupted one resumes from its checkpoint; the others train as one
     stack in this process."""
+    training_process()  # this worker process trains
     params = load_params(job["params"])
     region = make_region(job["region"], params.regions[job["region"]], params.world.region_area)
     rc = run_config(params, job["config"], job["method"], job["region"])

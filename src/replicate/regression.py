@@ -45,6 +45,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--write", required=True, help="folder to write the reference curves into")
     parser.add_argument("--params", default="params.yaml")
     args = parser.parse_args(argv)
+    from .train import training_process
+
+    training_process()
     params = load_params(args.params)
     for config, method in CASES:
         with tempfile.TemporaryDirectory() as tmp:

@@ -168,6 +168,10 @@ class Trainer:
         self.update_seconds = 0.0  # time spent in MADDPG updates (the rest is environment, geometry, acting)
         self.updates = 0
 
+    def column(self, name: str) -> int:
+        """The index of a named column (``curve_header``) in the rows of the curve."""
+        return curve_header(self.env.n_agents).index(name)
+
     def identity(self, run: int = 0) -> dict:
         """What makes run ``run`` the run it is, checked on resume."""
         return run_identity(self.rc, self.region, self.episodes, self.seeds[run])
@@ -249,7 +253,7 @@ class Trainer:
                 "update_seconds": round(self.update_seconds, 2),
                 "updates": self.updates,
                 "transitions": self.transitions,
-                "final_coverage_last100": float(np.mean([r[n + 2] for r in self.rows[k][-100:]])),
+                "final_coverage_last100": float(np.mean([r[self.column("coverage")] for r in self.rows[k][-100:]])),
             }
             if self.best[k] is not None:
                 summary["selected_episode"] = self.best[k]["episode"]
@@ -378,6 +382,14 @@ def hold_freed_memory() -> bool:
     return all(mallopt(option, value) == 1 for option, value in settings)
 
 
+def training_process() -> None:
+    """Settings of a process that trains: one thread (one process per core is faster than threads for these
+    small matrices) and an allocator that keeps freed memory (``hold_freed_memory``). Called by the entry points:
+    the CLI, the pipeline's training processes, the tuning trials and the benchmarks."""
+    torch.set_num_threads(1)
+    hold_freed_memory()
+
+
 def train_runs(
     rc: RunConfig,
     region: Region,
@@ -389,9 +401,11 @@ def train_runs(
     progress: bool = True,
 ) -> list[dict]:
     """Train one run per seed, all in this process (``Trainer``), into ``outs``; ``resume`` continues them from
-    their checkpoints, refusing mismatched ones."""
-    torch.set_num_threads(1)
-    hold_freed_memory()
+    their checkpoints, refusing mismatched ones. Leftovers of a writer that was killed (``.*.tmp``) are removed
+    first. The process-wide settings of a training process (``training_process``) are its entry point's."""
+    for out in outs:
+        for leftover in Path(out).glob(".*.tmp"):
+            leftover.unlink(missing_ok=True)
     trainer = Trainer(rc, region, episodes, list(seeds), [Path(o) for o in outs], checkpoint_every, progress)
     if resume:
         trainer.load_checkpoint()
