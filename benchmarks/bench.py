@@ -40,7 +40,7 @@ from replicate.env import CoverageEnv
 from replicate.export import OBS_LAYOUT
 from replicate.maddpg import MADDPG, ReplayBuffer, clip_grad_per_agent, soft_update
 from replicate.maddpg_loop import LoopMADDPG
-from replicate.pipeline import cell_seeds, matrix_cells
+from replicate.pipeline.matrix import cell_seeds, matrix_cells
 from replicate.regions import make_region
 from replicate.train import Trainer, hold_freed_memory
 

@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from replicate.config import run_config
-from replicate.pipeline import run_cost
+from replicate.pipeline.matrix import run_cost
 
 from .conftest import ROOT
 
@@ -55,7 +55,7 @@ def test_every_spec_figure_has_a_stage_output():
     stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
     outs = [next(iter(o)) if isinstance(o, dict) else o for o in stages["figures"]["outs"]]
     assert "figures" in outs
-    source = (ROOT / "src" / "replicate" / "figures.py").read_text()
+    source = (ROOT / "src" / "replicate" / "pipeline" / "figures.py").read_text()
     for name in ONCE + ["fig_{tag}_reward", "fig_{tag}_spread", "fig_{config}_coverage_{region_name}"]:
         assert name in source, f"no figure code writes {name}"
     params = yaml.safe_load((ROOT / "params.yaml").read_text())

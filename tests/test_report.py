@@ -8,8 +8,8 @@ import json
 import re
 
 from replicate import stats
-from replicate.evaluate import split_ablation
-from replicate.report import claims, comparisons, sensitivity, span, targets, write_report
+from replicate.pipeline.evaluation import split_ablation
+from replicate.pipeline.report import claims, comparisons, sensitivity, span, targets, write_report
 
 from .conftest import ROOT
 

@@ -376,7 +376,7 @@ class Params:
 
     def all_configs(self) -> dict[str, AlgoConfig]:
         """The written configs plus one derived config per ablation change."""
-        derived = {f"{self.ablation.base}-without-{c}": ablation_config(self, c) for c in self.ablation.changes}
+        derived = {ablated_name(self.ablation.base, c): ablation_config(self, c) for c in self.ablation.changes}
         return {**self.configs, **derived}
 
 
@@ -387,6 +387,11 @@ def selection_only(params: Params, change: str) -> bool:
     """A change that only picks which actors are kept: its "without" run is the base run itself (training is
     identical), evaluated with its last actors instead of the selected ones."""
     return set(params.ablation.changes[change]) <= set(SELECTION_KEYS)
+
+
+def ablated_name(base: str, change: str) -> str:
+    """The name of ``base`` without ``change``: the config of one leave-one-out ablation run."""
+    return f"{base}-without-{change}"
 
 
 def ablation_config(params: Params, change: str) -> AlgoConfig:

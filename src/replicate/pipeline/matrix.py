@@ -14,10 +14,10 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from . import artifacts
-from .config import load_params, run_config, selection_only
-from .regions import make_region
-from .train import core_seconds, finished_run, run_identity, train_runs, training_process
+from .. import artifacts
+from ..config import ablated_name, load_params, run_config, selection_only
+from ..regions import make_region
+from ..train import core_seconds, finished_run, run_identity, train_runs, training_process
 
 
 def run_name(config: str, method: str, region: str, seed: int) -> str:
@@ -69,7 +69,7 @@ def ablation_cells(params) -> list[tuple[str, str, str]]:
     """(config, method, region) of the leave-one-out ablation runs; a selection-only change needs no run of its
     own (its "without" is the base run's last actors)."""
     ab = params.ablation
-    return [(f"{ab.base}-without-{c}", ab.method, r) for c in ab.changes if not selection_only(params, c)
+    return [(ablated_name(ab.base, c), ab.method, r) for c in ab.changes if not selection_only(params, c)
             for r in ab.regions]
 
 

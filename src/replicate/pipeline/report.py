@@ -13,8 +13,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from . import artifacts, stats
-from .config import Cell, ReportConfig
+from .. import artifacts, stats
+from ..config import Cell, ReportConfig
 
 REPRODUCED, PARTLY, NOT = "reproduced", "partly", "not reproduced"
 

@@ -9,18 +9,19 @@ from pathlib import Path
 
 import numpy as np
 
-from . import plots
-from .config import load_params
-from .env import start_patch
-from .evaluate import BASELINES, not_in_matrix, read_curve
-from .metrics import coverage_ceiling
-from .regions import make_region
-from .train import CURVE
+from .. import plots
+from ..config import load_params
+from ..env import start_patch
+from ..evaluate import BASELINES, read_curve
+from ..metrics import coverage_ceiling
+from ..regions import make_region
+from ..train import CURVE
+from .evaluation import not_in_matrix
 
 
 def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir: str, outline_path: str) -> list:
     """Every figure of SPEC §9, one PNG per panel, for every configuration; returns the paths written."""
-    from .regions import region_from_file
+    from ..regions import region_from_file
 
     params = load_params(params_path)
     fig = Path(figures_dir)
@@ -103,7 +104,7 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
                                           f"{params.ablation.method.upper()}-MARL `{params.ablation.base}` on "
                                           f"{region_name}: each change removed in turn"))
 
-    from .animate import animate_run
+    from ..animate import animate_run
 
     for (config, method, region_name), group in sorted(by_group.items()):
         if method == "cr":  # one animated evaluation episode per region and configuration
