@@ -14,6 +14,7 @@ from replicate.config import (
     MADDPGConfig,
     Params,
     load_params,
+    method_config,
     run_config,
     to_dict,
 )
@@ -114,15 +115,15 @@ def flat(d, prefix=""):
 def test_ablation_covers_every_change_from_paper_to_tuned(params):
     """Each key where `tuned` differs from `paper` is in exactly one ablation change, and every change differs."""
     ab = params.ablation
-    base = dict(flat(to_dict(params.configs[ab.base])))
-    ref = dict(flat(to_dict(params.configs[ab.reference])))
+    base = dict(flat(to_dict(method_config(params, ab.base, ab.method))))  # as the ablation's method trains it
+    ref = dict(flat(to_dict(method_config(params, ab.reference, ab.method))))
     differing = {k for k in base if base[k] != ref[k]}
     listed = [k for keys in ab.changes.values() for k in keys]
     assert sorted(listed) == sorted(set(listed)), "a key belongs to one change only"
     assert differing == set(listed)
     deviations = (ROOT / "docs" / "DEVIATIONS.md").read_text()
     for change, keys in ab.changes.items():
-        derived = dict(flat(to_dict(params.all_configs()[f"{ab.base}-without-{change}"])))
+        derived = dict(flat(to_dict(method_config(params, f"{ab.base}-without-{change}", ab.method))))
         assert {k for k in base if derived[k] != base[k]} == set(keys)
         assert all(derived[k] == ref[k] for k in keys)
         assert f"(`{change}`)" in deviations, f"docs/DEVIATIONS.md has no row for the {change} change"
