@@ -122,6 +122,18 @@ def check_schedule(rc: RunConfig, episodes: int, checkpoint_every: int) -> None:
 
 
 @dataclass
+class Played:
+    """What a batch of episodes gave, per run s and environment e: returns [S, E, N], the last step's coverage
+    [S, E], the summed fraction of saturated actions [S], and each update's diagnostics (one [S] array each)."""
+
+    returns: np.ndarray
+    saturated: np.ndarray
+    coverage: np.ndarray | None = None
+    critic_loss: list = dataclasses.field(default_factory=list)
+    q_abs: list = dataclasses.field(default_factory=list)
+
+
+@dataclass
 class Trainer:
     """S training runs of one config, method and region, one per seed of ``seeds``, written to the folders ``outs``
     (an int and a folder for one run). The runs step together: their environments are blocks of one batch
@@ -181,58 +193,24 @@ class Trainer:
         return x.reshape(len(self.seeds), -1, *x.shape[1:])
 
     def run(self) -> list[dict]:
-        """Train every run to ``episodes``, checkpointing on the way; returns the runs' summaries."""
-        algo, world = self.rc.algo, self.rc.world
-        cfg = algo.maddpg
-        n_env, n, horizon, runs = algo.n_envs, self.env.n_agents, world.episode_length, len(self.seeds)
-        start_batch = len(self.rows[0]) // n_env
-        n_batches = self.episodes // n_env
+        """Train every run to ``episodes``, checkpointing on the way; returns the runs' summaries. Each batch of
+        ``n_envs`` episodes per run is played (``play``, which learns as the transitions come in: ``learn``),
+        recorded (``record``), then validated and checkpointed on their schedules."""
+        algo, cfg = self.rc.algo, self.rc.algo.maddpg
+        n_env, runs = algo.n_envs, len(self.seeds)
         for k, out in enumerate(self.outs):
             artifacts.write_json(out / "run.json", {**self.identity(k), "status": "running"})
         bar = tqdm(total=self.episodes * runs, initial=len(self.rows[0]) * runs, disable=not self.progress,
                    unit="ep", smoothing=0.05)
         t0 = time.perf_counter() - self.wall
-        for batch in range(start_batch, n_batches):
-            sigma = noise_sigma(cfg, batch * n_env / self.episodes)
-            self.agent.scale_learning_rates(lr_factor(cfg, batch * n_env / self.episodes))
-            obs = self._runs(self.env.reset())  # [S, E, N, od]
-            returns = np.zeros((runs, n_env, n))
-            diag = {"critic_loss": [], "q_abs": []}  # one [S] array per update
-            saturated = np.zeros(runs)
-            for t in range(horizon):
-                action, mu = self.agent.act(obs, sigma, self.noise_rngs)
-                saturated += (np.abs(mu) > 0.99).mean(axis=(1, 2, 3))
-                step = self.env.step(action.reshape(-1, n, 2))
-                reward, next_obs = self._runs(step.reward), self._runs(step.obs)
-                for k, writer in enumerate(self.writers):
-                    writer.add(obs[k], action[k], reward[k] * algo.reward_scale, next_obs[k], last=t == horizon - 1)
-                returns += reward
-                obs = next_obs
-                self.transitions += n_env
-                if self.buffers[0].size >= cfg.learning_starts:
-                    self.pending_updates += n_env / cfg.update_every
-                    tu = time.perf_counter()
-                    while self.pending_updates >= 1.0:
-                        self.pending_updates -= 1.0
-                        minibatch = Batch.stack([buffer.sample(rng, cfg.batch_size)
-                                                 for buffer, rng in zip(self.buffers, self.sample_rngs)])
-                        stats = self.agent.update(minibatch)
-                        diag["critic_loss"].append(stats["critic_loss"])
-                        diag["q_abs"].append(stats["q_abs"])
-                        self.updates += 1
-                    self.update_seconds += time.perf_counter() - tu
-            # CR's reward already measured the union at the last step; SW's did not
-            coverage = step.union_area / self.region.area if self.rc.method.reward == "cr" else None
-            coverage = self._runs(self.env.coverage_fraction() if coverage is None else coverage)
-            for k in range(runs):
-                loss = float(np.mean([d[k] for d in diag["critic_loss"]])) if diag["critic_loss"] else math.nan
-                q_abs = float(np.mean([d[k] for d in diag["q_abs"]])) if diag["q_abs"] else math.nan
-                for e in range(n_env):
-                    team = float(returns[k, e].mean())
-                    self.rows[k].append([batch * n_env + e, *returns[k, e].tolist(), team, float(coverage[k, e]),
-                                         loss, q_abs, float(saturated[k] / horizon), sigma])
+        for batch in range(len(self.rows[0]) // n_env, self.episodes // n_env):
+            progress = batch * n_env / self.episodes
+            sigma = noise_sigma(cfg, progress)
+            self.agent.scale_learning_rates(lr_factor(cfg, progress))
+            played = self.play(sigma)
+            self.record(batch, played, sigma)
             bar.update(n_env * runs)
-            bar.set_postfix(reward=f"{returns.mean():.1f}", coverage=f"{coverage.mean():.2f}")
+            bar.set_postfix(reward=f"{played.returns.mean():.1f}", coverage=f"{played.coverage.mean():.2f}")
             done = (batch + 1) * n_env
             if algo.select_every and done % algo.select_every < n_env:
                 self.validate(done)
@@ -243,13 +221,70 @@ class Trainer:
         self.wall = time.perf_counter() - t0
         self.save_curves()
         self.save_actors()
+        return self.finish()
+
+    def play(self, sigma: float) -> Played:
+        """One batch of episodes in every run's E environments with exploration ``sigma``: each step's
+        transitions go to the runs' buffers (as n-step returns) and every update they are due triggers."""
+        algo, n, horizon = self.rc.algo, self.env.n_agents, self.rc.world.episode_length
+        runs, n_env = len(self.seeds), algo.n_envs
+        obs = self._runs(self.env.reset())  # [S, E, N, od]
+        played = Played(returns=np.zeros((runs, n_env, n)), saturated=np.zeros(runs))
+        for t in range(horizon):
+            action, mu = self.agent.act(obs, sigma, self.noise_rngs)
+            played.saturated += (np.abs(mu) > 0.99).mean(axis=(1, 2, 3))
+            step = self.env.step(action.reshape(-1, n, 2))
+            reward, next_obs = self._runs(step.reward), self._runs(step.obs)
+            for k, writer in enumerate(self.writers):
+                writer.add(obs[k], action[k], reward[k] * algo.reward_scale, next_obs[k], last=t == horizon - 1)
+            played.returns += reward
+            obs = next_obs
+            self.transitions += n_env
+            self.learn(played)
+        # CR's reward already measured the union at the last step; SW's did not
+        coverage = step.union_area / self.region.area if self.rc.method.reward == "cr" else None
+        played.coverage = self._runs(self.env.coverage_fraction() if coverage is None else coverage)
+        return played
+
+    def learn(self, played: Played) -> None:
+        """The updates due after the transitions so far: one per ``update_every`` transitions once the buffers
+        hold ``learning_starts``, each on a minibatch of every run's own buffer."""
+        cfg = self.rc.algo.maddpg
+        if self.buffers[0].size < cfg.learning_starts:
+            return
+        self.pending_updates += self.rc.algo.n_envs / cfg.update_every
+        tu = time.perf_counter()
+        while self.pending_updates >= 1.0:
+            self.pending_updates -= 1.0
+            minibatch = Batch.stack([buffer.sample(rng, cfg.batch_size)
+                                     for buffer, rng in zip(self.buffers, self.sample_rngs)])
+            stats = self.agent.update(minibatch)
+            played.critic_loss.append(stats["critic_loss"])
+            played.q_abs.append(stats["q_abs"])
+            self.updates += 1
+        self.update_seconds += time.perf_counter() - tu
+
+    def record(self, batch: int, played: Played, sigma: float) -> None:
+        """One curve row per episode of the batch, per run (``curve_header``)."""
+        n_env, horizon = self.rc.algo.n_envs, self.rc.world.episode_length
+        for k in range(len(self.seeds)):
+            loss = float(np.mean([d[k] for d in played.critic_loss])) if played.critic_loss else math.nan
+            q_abs = float(np.mean([d[k] for d in played.q_abs])) if played.q_abs else math.nan
+            for e in range(n_env):
+                returns = played.returns[k, e]
+                self.rows[k].append([batch * n_env + e, *returns.tolist(), float(returns.mean()),
+                                     float(played.coverage[k, e]), loss, q_abs, float(played.saturated[k] / horizon),
+                                     sigma])
+
+    def finish(self) -> list[dict]:
+        """Each run's summary in its ``run.json``; a finished run needs no checkpoint (100-250 MB), so it goes."""
         summaries = []
         for k, out in enumerate(self.outs):
             summary = {
                 **self.identity(k),
                 "status": "finished",
                 "wall_seconds": round(self.wall, 2),  # of the stack: every run of it took this long
-                "runs_in_process": runs,  # so one core's time per run is wall_seconds / runs_in_process
+                "runs_in_process": len(self.seeds),  # so one core's time per run is wall_seconds / runs_in_process
                 "update_seconds": round(self.update_seconds, 2),
                 "updates": self.updates,
                 "transitions": self.transitions,
@@ -259,7 +294,7 @@ class Trainer:
                 summary["selected_episode"] = self.best[k]["episode"]
                 summary["selected_validation_coverage"] = self.best[k]["coverage"]
             artifacts.write_json(out / "run.json", summary)
-            (out / "checkpoint.pt").unlink(missing_ok=True)  # a finished run needs none (and it is 100-250 MB)
+            (out / "checkpoint.pt").unlink(missing_ok=True)
             summaries.append(summary)
         return summaries
 
