@@ -146,3 +146,12 @@ def test_readme_numbers_come_from_the_report():
     numbers = set(re.findall(r"(?<![\w.])0\.\d{2,}(?![\w.])", readme))  # fractions: coverage, Δ, P
     missing = sorted(n for n in numbers if n not in report)
     assert not missing, f"README numbers not in REPORT.md: {missing}"
+
+
+def test_an_unfinished_matrix_is_named_at_the_top(params, tmp_path):
+    s = ablated(params)  # 3 seeds per cell where params.yaml asks for 10 (tuned) and 5 (paper), no paper runs
+    (tmp_path / "summary.json").write_text(json.dumps(s))
+    text = write_report(params, str(tmp_path / "summary.json"), str(tmp_path / "none.json"), {}, [],
+                        str(tmp_path / "R.md"), {})
+    head = text.split("## Seeds")[0]
+    assert "Incomplete" in head and "`tuned/cr/square`: 3 of 10 seeds" in head and "`paper/sw/bedok`: 0 of 5" in head

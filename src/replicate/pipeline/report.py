@@ -311,6 +311,22 @@ def seeds_section(params) -> list[str]:
     return lines
 
 
+def missing_runs(params, summary: dict) -> list[str]:
+    """Cells of the matrix (``pipeline`` × ``train.seeds``) with fewer evaluated seeds than params.yaml asks for,
+    as "CELL: n of N seeds"."""
+    matrix = params.stages.get("pipeline", {})
+    out = []
+    for config in matrix.get("configs", []):
+        for method in matrix.get("methods", []):
+            for region in matrix.get("regions", []):
+                cell = Cell(config, method, region)
+                want = params.train.seeds_of(config)
+                have = summary["runs"].get(cell.key, {}).get("seeds", [])
+                if set(want) - set(have):
+                    out.append(f"`{cell.key}`: {len(set(have) & set(want))} of {len(want)} seeds")
+    return out
+
+
 def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict[str, str], figures: list[str],
                  out: str, stage_times: dict) -> str:
     summary = json.loads(Path(summary_path).read_text())
@@ -329,7 +345,13 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
              "pooled). Every rule below is `params.yaml` `report`, fixed before the numbers; the sensitivity "
              "column repeats the verdict with every margin and tolerance × "
              f"{' and × '.join(map(str, rules.sensitivity))}.",
-             "", *seeds_section(params)]
+             ""]
+    missing = missing_runs(params, summary)
+    if missing:
+        lines += ["**Incomplete: the training matrix is not finished.** These cells have fewer evaluated runs than "
+                  "`train.seeds` asks for, and every statement below about them rests on the runs there are: "
+                  + "; ".join(missing) + ". `dvc repro` trains the missing runs (finished ones are kept).", ""]
+    lines += seeds_section(params)
     for config in configs:
         lines += [f"## The paper's claims — `{config}` configuration", "",
                   "| claim | rule | verdict | sensitivity | evidence |", "|---|---|---|---|---|"]
@@ -407,10 +429,12 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
         runs = timing["runs"]
         cores = [r["core_seconds"] for r in runs]
         kept = sum(r["skipped"] for r in runs)
+        stage = (f"the last `train` stage took {timing['wall_seconds']:.0f} s wall and kept {kept} runs already "
+                 "finished with identical settings" if timing.get("wall_seconds") is not None else
+                 "the runs were trained by separate `train_matrix` calls, not one `train` stage")
         lines.append(f"Training: {len(runs)} runs, {sum(cores):.0f} s of one core's time in all ({span(cores)} s "
                      "per run; a cell's seeds train together in one process, and a run counts its share of that "
-                     f"process's wall time); the last `train` stage took {timing['wall_seconds']:.0f} s wall and "
-                     f"kept {kept} runs already finished with identical settings.")
+                     f"process's wall time); {stage}.")
     for stage, seconds in stage_times.items():
         lines.append(f"- `{stage}`: {seconds:.0f} s")
     lines += ["", "## Figures", ""]
