@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -129,3 +130,22 @@ def test_file_without_crs_is_refused(tmp_path):
         gpd.GeoDataFrame(geometry=[box(0, 0, 10, 10)]).to_file(tmp_path / "nocrs.shp")
     with pytest.raises(RegionError, match="no CRS"):
         region_from_file(tmp_path / "nocrs.shp")
+
+
+@pytest.mark.parametrize("name, geometry, crs, message", [
+    ("projected", box(380000, 148000, 381000, 149000), "EPSG:4326", "are not longitudes and latitudes"),
+    ("pole", Polygon([(0, 89), (120, 89), (-120, 89.5)]), "EPSG:4326", "no UTM zone fits"),
+    ("continent", box(-10, 35, 40, 60), "EPSG:4326", "outside the 100-1e+11 m²"),
+    ("puddle", box(103.9, 1.3, 103.90001, 1.30001), "EPSG:4326", "its area is 1.23 m²"),
+])
+def test_outlines_no_buoy_swarm_can_use_are_refused_with_the_reason(tmp_path, name, geometry, crs, message):
+    import geopandas as gpd
+
+    path = tmp_path / f"{name}.geojson"
+    if name == "projected":  # a GeoJSON written without a CRS: readers take WGS 84
+        path.write_text(json.dumps({"type": "FeatureCollection", "features": [
+            {"type": "Feature", "properties": {}, "geometry": shapely.geometry.mapping(geometry)}]}))
+    else:
+        gpd.GeoDataFrame(geometry=[geometry], crs=crs).to_file(path)
+    with pytest.raises(RegionError, match=re.escape(message)):
+        region_from_file(path)

@@ -187,9 +187,16 @@ def run_region(run_dir: str, params: Params, region: str | None) -> Region:
     import json
 
     path = Path(run_dir) / "run.json"
-    if region is None and not path.exists():
-        raise FileNotFoundError(f"{path}: not a run folder (no run.json); pass --region")
-    return resolve_region(region or json.loads(path.read_text())["region"], params)
+    if not path.exists():
+        if region is None:
+            raise FileNotFoundError(f"{path}: not a run folder (no run.json); pass --region")
+        return resolve_region(region, params)
+    own = json.loads(path.read_text())["region"]
+    chosen = resolve_region(region or own, params)
+    if chosen.name != own:
+        print(f"note: {run_dir} was trained on {own!r}; evaluating it on {chosen.name!r} (its actors observe "
+              "absolute positions, so they know only the region they were trained on)", file=sys.stderr)
+    return chosen
 
 
 def cmd_cover(args: argparse.Namespace) -> int:

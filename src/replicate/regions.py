@@ -137,11 +137,30 @@ def read_outline(path: str | Path, layer: str | None = None):
         raise RegionError(f"{path}: no polygon features (found {kinds or 'only empty geometries'})")
     if len(polys) > 1:
         warnings.warn(f"{path}: {len(polys)} polygon features; using the largest", stacklevel=2)
-    utm = polys.estimate_utm_crs()
+    if polys.crs.is_geographic:
+        minx, miny, maxx, maxy = polys.total_bounds
+        if not (-180 <= minx <= maxx <= 360 and -90 <= miny <= maxy <= 90):
+            raise RegionError(f"{path}: the coordinates ({minx:.6g} … {maxx:.6g}, {miny:.6g} … {maxy:.6g}) are not "
+                              f"longitudes and latitudes, but the file's CRS is {polys.crs.to_string()} (GeoJSON "
+                              "without a CRS means WGS 84); write the file with the CRS its coordinates are in")
+    utm = estimate_utm(polys, path)
     areas = polys.to_crs(utm).area
     row = polys.loc[areas.idxmax()]
     props = {k: v for k, v in row.items() if k != "geometry" and isinstance(v, (str, int, float))}
     return row.geometry, polys.crs, props
+
+
+# Real areas a buoy swarm covers: smaller is a pond a buoy spans, larger is not a lake (a continent is ~1e13 m²)
+MIN_AREA_M2, MAX_AREA_M2 = 100.0, 1e11
+
+
+def estimate_utm(frame, what) -> object:
+    """The UTM CRS of ``frame``'s geometries, or a RegionError that says why there is none."""
+    try:
+        return frame.estimate_utm_crs()
+    except RuntimeError as exc:
+        raise RegionError(f"{what}: no UTM zone fits this outline ({exc}: it may lie near a pole or span many "
+                          "zones); project it into a metric CRS of your own and pass that file") from None
 
 
 def region_from_geometry(
@@ -165,8 +184,11 @@ def region_from_geometry(
         notes.append(str(w.message))
         warnings.warn(str(w.message), stacklevel=2)
     gs = gpd.GeoSeries([poly], crs=crs)
-    utm_crs = gs.estimate_utm_crs()
+    utm_crs = estimate_utm(gs, name)
     utm_poly = check_polygon(gs.to_crs(utm_crs).iloc[0], f"{name} (UTM)")
+    if not MIN_AREA_M2 <= utm_poly.area <= MAX_AREA_M2:
+        raise RegionError(f"{name}: its area is {utm_poly.area:.4g} m², outside the {MIN_AREA_M2:g}-{MAX_AREA_M2:g} m² "
+                          "of a waterbody a buoy swarm covers; check the outline and its CRS")
     sim, scale, offset = normalise(utm_poly, area)
     if area is not None:
         notes.append(f"scaled to {area:g} m²: 1 simulation metre = {scale:.1f} m ({utm_crs.to_string()})")
