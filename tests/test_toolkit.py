@@ -76,6 +76,7 @@ def test_act_command_with_real_coordinates(small_run, regions, tmp_path):
     np.testing.assert_allclose([got[f"buoy_{i}"] for i in range(9)], act(tmp_path / "policy.pt", sim), atol=1e-5)
 
 
+@pytest.mark.slow
 def test_act_takes_negative_numbers_and_standard_input(small_run, regions, tmp_path):
     export_policy(small_run / "actors.pt", regions["square"], tmp_path / "policy.pt")
     sim = np.random.default_rng(1).uniform(-1.5, -0.5, (9, 4))  # every value negative
@@ -97,6 +98,7 @@ def cli_argv() -> list[str]:
     return [sys.executable, "-m", "replicate.cli"]
 
 
+@pytest.mark.slow
 def test_one_cli_shape_for_every_verb(small_run, tmp_path):
     """A run is a positional RUN for evaluate, export and animate; --set works before or after the verb."""
     out, observes = tmp_path / "m.json", "configs.tuned.observation=position_velocity"  # as small_run does
@@ -121,6 +123,7 @@ def test_animation_has_one_frame_per_step(small_run, params, regions, tmp_path):
     assert not list(tmp_path.glob(".*.gif"))
 
 
+@pytest.mark.slow
 def test_cover_a_lake_the_repo_does_not_ship(tmp_path):
     """`replicate cover --region FILE` offline end to end, at real scale with 5 buoys of 150 m."""
     lake = Polygon([(6.56, 46.50), (6.575, 46.502), (6.58, 46.51), (6.565, 46.512), (6.555, 46.505)])
@@ -148,6 +151,7 @@ def test_cover_place_offline_names_the_alternative(tmp_path):
     assert "--region FILE" in proc.stderr.read()
 
 
+@pytest.mark.slow
 def test_every_verb_works_from_any_folder(tmp_path):
     """Outside the repository the defaults and the Bedok outline installed with the package are used."""
     train = cli(*SMALL, "train", "--config", "tuned", "--method", "cr", "--region", "bedok", "--episodes", "20",

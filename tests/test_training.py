@@ -60,6 +60,7 @@ def test_same_seed_same_curve_different_seed_different(params, tmp_path):
     assert not np.allclose(a["team_reward"], c["team_reward"])
 
 
+@pytest.mark.slow
 def test_short_cr_run_learns(params, regions, tmp_path):
     """1,000 episodes of tuned CR-MARL on the square raise the deterministic policy's return and beat random
     actions on coverage.
@@ -299,6 +300,7 @@ SMALL = ["--set", "configs.tuned.n_envs=10", "--set", "configs.tuned.maddpg.lear
          "--set", "configs.tuned.maddpg.batch_size=32"]
 
 
+@pytest.mark.slow
 def test_killed_run_resumes_to_the_same_curve(tmp_path):
     """Kill a run after its first checkpoints; `--resume RUN` finishes it with the curve of an uninterrupted run."""
     common = [*SMALL, "--set", "configs.tuned.select_every=20",
@@ -334,6 +336,7 @@ def wait_for_checkpoint(run: Path, timeout: float = 300) -> None:
         time.sleep(0.05)
 
 
+@pytest.mark.slow
 def test_interrupted_run_resumes_with_the_command_it_prints(tmp_path):
     """Ctrl-C prints the command that continues the run; that command, exactly, finishes it."""
     out = tmp_path / "my run"
@@ -351,6 +354,7 @@ def test_interrupted_run_resumes_with_the_command_it_prints(tmp_path):
     assert not list(out.glob(".*.tmp")), "no partial files are left behind"
 
 
+@pytest.mark.slow
 def test_training_into_a_finished_run_leaves_it_unchanged(tmp_path):
     out = tmp_path / "done"
     args = [*SMALL, "train", "--config", "tuned", "--method", "sw", "--region", "square", "--episodes", "20",
@@ -376,6 +380,7 @@ def test_a_refused_schedule_leaves_no_folder(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_cli_train_and_evaluate_with_baseline(tmp_path):
     out = tmp_path / "run"
     proc = cli(*SMALL, "train", "--config", "tuned", "--method", "sw", "--region", "rectangle", "--episodes", "20",
