@@ -340,10 +340,10 @@ def wait_for_checkpoint(run: Path, timeout: float = 300) -> None:
 def test_interrupted_run_resumes_with_the_command_it_prints(tmp_path):
     """Ctrl-C prints the command that continues the run; that command, exactly, finishes it."""
     out = tmp_path / "my run"
-    proc = cli(*SMALL, "train", "--config", "tuned", "--method", "cr", "--region", "square", "--episodes", "60",
+    proc = cli(*SMALL, "train", "--config", "tuned", "--method", "cr", "--region", "square", "--episodes", "400",
                "--checkpoint-every", "10", "--no-progress", "--out", str(out), stderr=subprocess.PIPE, text=True)
     wait_for_checkpoint(out)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(signal.SIGINT)  # 400 episodes outlast the first checkpoints by far, even on a loaded machine
     assert proc.wait(timeout=300) == 130
     hint = re.search(r"`(replicate train --resume .+?)`", proc.stderr.read())
     assert hint, "the interruption names the command that continues the run"
