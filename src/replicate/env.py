@@ -161,8 +161,7 @@ class CoverageEnv:
             raise ValueError(f"cannot lose {count} of {self.n_agents} buoys and keep one")
         for e in range(self.n_envs):  # E draws of a few indices: the loop is over environments, not agents
             alive[e, rng.choice(np.flatnonzero(alive[e]), size=count, replace=False)] = False
-        self.alive = alive
-        self.vel = np.where(alive[..., None], self.vel, 0.0)
+        self.alive = alive  # ``integrate`` holds the lost buoys still from here on
 
     def live(self, x: np.ndarray) -> np.ndarray:
         """The rows of the buoys still in service of a per-buoy array [E, N, ...] → [E, N_live, ...] (every

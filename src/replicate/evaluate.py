@@ -167,11 +167,12 @@ def baseline_policy(name: str, params: Params, tuned: dict | None = None) -> bas
     return baselines.lloyd(LloydConfig(**tuned["gains"], converged_steps=ev.lloyd.converged_steps))
 
 
-def steps_bar(params: Params, rc: RunConfig, progress: bool, what: str, steps: int | None = None):
-    """A progress bar over the environment steps of an evaluation and its robustness scenarios."""
+def steps_bar(params: Params, rc: RunConfig, progress: bool, what: str, steps: int | None = None,
+              scenarios: bool = True):
+    """A progress bar over the environment steps of an evaluation (and of its robustness scenarios)."""
     from tqdm.auto import tqdm
 
-    scenarios = sum(round(s.horizon * rc.world.episode_length) for s in params.evaluate.robustness.values())
+    scenarios = scenarios * sum(round(s.horizon * rc.world.episode_length) for s in params.evaluate.robustness.values())
     total = (rc.world.episode_length if steps is None else steps) + scenarios
     return tqdm(total=total, desc=what, unit="step", disable=not progress, leave=False)
 
@@ -187,12 +188,11 @@ def evaluate_baseline(name: str, params: Params, region: Region, config: str = "
     env = eval_env(region, rc, ev.episodes)
     steps = ev.lloyd.converged_steps if name == "lloyd_converged" else rc.world.episode_length
     policy = baseline_policy(name, params, tuned)
-    with steps_bar(params, rc, progress, f"evaluating {name}", steps) as bar:
-        if name == "lloyd_converged":
-            bar.total = steps
+    limit = name == "lloyd_converged"  # a layout after many steps, not a policy under a horizon: no scenarios
+    with steps_bar(params, rc, progress, f"evaluating {name}", steps, scenarios=not limit) as bar:
         pos = rollout(env, policy, steps, ev.seed, bar=bar)["positions"]
         out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
-        if name != "lloyd_converged":
+        if not limit:
             out["robustness"] = robustness(env, policy, params, region, rc, bar)
     if tuned is not None:
         out["gains"] = tuned["gains"]

@@ -54,9 +54,10 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
     params = load_params(params_path)
     tuned = json.loads(Path(tuned_baselines).read_text())
     jobs = []
+    built = {name: make_region(name, spec, params.world.region_area) for name, spec in params.regions.items()}
     for run in sorted(p for p in Path(runs_dir).iterdir() if (p / "actors.pt").exists()):
         ident = json.loads((run / "run.json").read_text())
-        why = not_in_matrix(params, ident, run)
+        why = not_in_matrix(params, ident, run, built)
         if why:  # a run of older code or settings, of a seed that chose values, of an ablation since removed
             print(f"evaluate: skipped {run.name}: {why}")
             continue
@@ -81,10 +82,10 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
     return summary
 
 
-def not_in_matrix(params: Params, ident: dict, run: Path) -> str | None:
+def not_in_matrix(params: Params, ident: dict, run: Path, regions: dict) -> str | None:
     """Why the finished run ``run`` (its ``run.json`` is ``ident``) is not one the pipeline reports, or None: its
     config and seed must be in the matrix (``train.seeds``, ``ablation.seeds``), and its identity (code version,
-    settings, region, episodes) the one params.yaml gives now."""
+    settings, region, episodes) the one params.yaml gives now. ``regions``: name → Region, built once."""
     from ..train import finished_run, run_identity
 
     config = ident.get("config")
@@ -94,8 +95,7 @@ def not_in_matrix(params: Params, ident: dict, run: Path) -> str | None:
         return f"params.yaml train.seeds has no seeds for {config!r}"
     if ident.get("seed") not in cell_seeds(params, config):
         return f"seed {ident.get('seed')} is not among {config}'s reported seeds"
-    region = make_region(ident["region"], params.regions[ident["region"]], params.world.region_area) \
-        if ident.get("region") in params.regions else None
+    region = regions.get(ident.get("region"))
     if region is None:
         return f"its region {ident.get('region')!r} is not in params.yaml"
     rc = run_config(params, config, ident["method"], ident["region"])

@@ -36,7 +36,7 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
     by_group: dict[tuple, list] = {}
     for run in runs:
         ident = json.loads((run / "run.json").read_text())
-        if ident["config"] not in params.configs or not_in_matrix(params, ident, run):
+        if ident["config"] not in params.configs or not_in_matrix(params, ident, run, regions):
             continue  # ablation runs (fig_ablation_*), and runs the pipeline does not report (see evaluate)
         by_group.setdefault((ident["config"], ident["method"], ident["region"]), []).append(run)
 
