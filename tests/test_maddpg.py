@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from replicate import run_stack
 from replicate.maddpg import MADDPG, Batch, BatchedMLP, NStepWriter, ReplayBuffer, adam_step, soft_update
 from replicate.maddpg_loop import LoopMADDPG
 
@@ -147,7 +148,7 @@ def test_a_stack_of_runs_is_its_runs_bit_for_bit(params, config, mode):
     """MADDPG over seeds [3, 8, 4] against three one-seed MADDPGs fed the same minibatches: every parameter, Adam
     moment and diagnostic is equal to the last bit after 30 updates (elementwise kernels round the last few
     elements of a tensor differently, so Adam and the soft update work on each run's part as its own tensor), and
-    ``state_dict(run)`` is the one-run state."""
+    ``run_stack.run_state`` is the one-run state."""
     cfg = dataclasses.replace(params.configs[config].maddpg, batch_size=64)
     seeds = [3, 8, 4]
     stack = MADDPG(9, 2, 2, cfg, mode, seeds)
@@ -161,7 +162,7 @@ def test_a_stack_of_runs_is_its_runs_bit_for_bit(params, config, mode):
             want = agent.update(batch)
             assert got["critic_loss"][k] == want["critic_loss"][0] and got["q_abs"][k] == want["q_abs"][0]
     for k, agent in enumerate(alone):
-        mine, theirs = stack.state_dict(k), agent.state_dict()
+        mine, theirs = run_stack.run_state(stack, k), run_stack.run_state(agent)
         for name in ("actor", "critic", "actor_target", "critic_target"):
             for key, t in theirs[name].items():
                 assert torch.equal(mine[name][key], t), (k, name, key)
@@ -182,17 +183,17 @@ def test_a_run_loads_into_any_place_of_a_stack(params):
     one = MADDPG(3, 2, 2, cfg, "individual", 5)
     one.update(filled_buffer(3, 2, rng).sample(rng, 32))
     stack = MADDPG(3, 2, 2, cfg, "individual", [0, 1])
-    stack.load_state_dict(one.state_dict(), run=1)
-    out = stack.state_dict(1)
-    assert all(torch.equal(out["actor"][k], t) for k, t in one.state_dict()["actor"].items())
-    assert torch.equal(out["critic_opt"]["state"][0]["exp_avg"], one.state_dict()["critic_opt"]["state"][0]["exp_avg"])
+    run_stack.load_run_state(stack, run_stack.run_state(one), run=1)
+    out, want = run_stack.run_state(stack, 1), run_stack.run_state(one)
+    assert all(torch.equal(out["actor"][k], t) for k, t in want["actor"].items())
+    assert torch.equal(out["critic_opt"]["state"][0]["exp_avg"], want["critic_opt"]["state"][0]["exp_avg"])
     with pytest.raises((KeyError, RuntimeError)):
-        stack.load_state_dict(MADDPG(4, 2, 2, cfg, "individual", 0).state_dict(), run=0)
+        run_stack.load_run_state(stack, run_stack.run_state(MADDPG(4, 2, 2, cfg, "individual", 0)), run=0)
     two = MADDPG(3, 2, 2, cfg, "individual", 6)
     for _ in range(2):
         two.update(filled_buffer(3, 2, rng).sample(rng, 32))
     with pytest.raises(ValueError, match="different steps"):
-        stack.load_state_dict(two.state_dict(), run=0)
+        run_stack.load_run_state(stack, run_stack.run_state(two), run=0)
 
 
 def test_individual_and_shared_rewards_differ(params):

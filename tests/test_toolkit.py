@@ -192,3 +192,20 @@ def test_built_package_carries_the_defaults(tmp_path):
     wheel = zipfile.ZipFile(next(tmp_path.glob("*.whl")))
     assert wheel.read("replicate/defaults/params.yaml") == (ROOT / "params.yaml").read_bytes()
     assert wheel.read("replicate/defaults/bedok_outline.geojson") == (ROOT / "data/bedok_outline.geojson").read_bytes()
+
+
+def test_ctrl_c_wrapped_by_a_library_is_still_an_interruption(monkeypatch, capsys):
+    """numba re-raises a KeyboardInterrupt that lands while it loads a cached function as an error of its own;
+    the CLI still answers as to Ctrl-C (exit 130 and the resume hint), and a plain error stays an error."""
+    from replicate import cli as replicate_cli
+
+    def wrapped(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise RuntimeError("numba could not unpickle") from exc
+
+    monkeypatch.setattr(replicate_cli, "cmd_export", wrapped)
+    assert replicate_cli.main(["export", "some-run"]) == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert not replicate_cli.caused_by_ctrl_c(RuntimeError("plain"))

@@ -344,8 +344,9 @@ def test_interrupted_run_resumes_with_the_command_it_prints(tmp_path):
                "--checkpoint-every", "10", "--no-progress", "--out", str(out), stderr=subprocess.PIPE, text=True)
     wait_for_checkpoint(out)
     proc.send_signal(signal.SIGINT)  # 400 episodes outlast the first checkpoints by far, even on a loaded machine
-    assert proc.wait(timeout=300) == 130
-    hint = re.search(r"`(replicate train --resume .+?)`", proc.stderr.read())
+    code, err = proc.wait(timeout=300), proc.stderr.read()
+    assert code == 130, err
+    hint = re.search(r"`(replicate train --resume .+?)`", err)
     assert hint, "the interruption names the command that continues the run"
     argv = shlex.split(hint.group(1))
     assert argv[:3] == ["replicate", "train", "--resume"] and Path(argv[3]) == out

@@ -469,9 +469,29 @@ def main(argv: list[str] | None = None) -> int:
               "it (e.g. shapely.make_valid)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        hint = getattr(args, "interrupted_hint", None)
-        print("replicate: interrupted" + (f"; {hint}" if hint else ""), file=sys.stderr)
-        return 130
+        return interrupted(args)
+    except Exception as exc:
+        if not caused_by_ctrl_c(exc):
+            raise
+        return interrupted(args)
+
+
+def caused_by_ctrl_c(exc: BaseException) -> bool:
+    """Whether ``exc`` wraps a KeyboardInterrupt: numba turns one that lands while it loads a compiled function
+    from its cache into an error of its own, raised from the interrupt."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def interrupted(args) -> int:
+    hint = getattr(args, "interrupted_hint", None)
+    print("replicate: interrupted" + (f"; {hint}" if hint else ""), file=sys.stderr)
+    return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

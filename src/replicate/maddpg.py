@@ -257,8 +257,7 @@ class MADDPG:
     """N MADDPG learners with stacked networks, for S independent runs at once (one per seed).
 
     ``act`` for rollouts, ``update`` for one step of all agents of all runs. Arrays carry a leading run axis
-    [S, ...]; with one seed it may be left out. ``state_dict(run)`` and ``load_state_dict(state, run)`` read and
-    write one run's part, in the same form whatever the stack, so a run trained in a stack resumes alone."""
+    [S, ...]; with one seed it may be left out. ``run_stack`` reads and writes one run's part for its checkpoint."""
 
     def __init__(
         self,
@@ -289,7 +288,7 @@ class MADDPG:
         self.critic_target = copy.deepcopy(self.critic)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr, fused=True)
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr, fused=True)
-        self.params = {k: list(getattr(self, k).parameters()) for k in NETWORKS}  # load_state_dict copies in place
+        self.params = {k: list(getattr(self, k).parameters()) for k in NETWORKS}  # run_stack loads in place
         self.agents = torch.arange(n_agents, device=self.device)
         # rows of critic i's first layer that read agent i's own action: the joint input is [o_1..o_N, a_1..a_N]
         own = n_agents * obs_dim + self.agents[:, None] * act_dim + torch.arange(act_dim, device=self.device)
@@ -384,57 +383,3 @@ class MADDPG:
             "critic_loss": np.array([run.sum().item() / n for run in losses]),
             "q_abs": np.array([run.abs().mean().item() for run in q.view(s, -1)]),
         }
-
-    # ---- one run's part of the stack, for its checkpoint -----------------------------------------------------
-    def _rows(self, run: int) -> slice:
-        """Run ``run``'s rows of every stacked tensor: its N agents."""
-        return slice(run * self.n, (run + 1) * self.n)
-
-    def network_state(self, name: str, run: int = 0) -> dict:
-        """Run ``run``'s part of one network (``NETWORKS``), as a one-run MADDPG's ``state_dict`` holds it."""
-        return {p: t[self._rows(run)].clone() for p, t in getattr(self, name).state_dict().items()}
-
-    def state_dict(self, run: int = 0) -> dict:
-        """Run ``run``'s networks and Adam states, shaped as a one-run MADDPG's."""
-        rows = self._rows(run)
-        state = {k: self.network_state(k, run) for k in NETWORKS}
-        for k in OPTIMISERS:
-            full = getattr(self, k).state_dict()
-            part = {i: {"step": st["step"].clone(), "exp_avg": st["exp_avg"][rows].clone(),
-                        "exp_avg_sq": st["exp_avg_sq"][rows].clone()} for i, st in full["state"].items()}
-            state[k] = {"state": part, "param_groups": full["param_groups"]}
-        return state
-
-    def load_state_dict(self, state: dict, run: int = 0) -> None:
-        """Write a one-run state (``state_dict``) into run ``run``'s part of the stack. Every run of a stack is
-        loaded before it trains on: their Adam steps must agree."""
-        rows = self._rows(run)
-        with torch.no_grad():
-            for k in NETWORKS:
-                net, theirs = getattr(self, k), state[k]
-                if set(theirs) != set(net.state_dict()):
-                    raise KeyError(f"{k}: parameters {sorted(theirs)} do not match")
-                for name, t in net.state_dict().items():
-                    t[rows] = theirs[name]
-        for k in OPTIMISERS:
-            opt, theirs = getattr(self, k), state[k]
-            if not theirs["state"]:
-                continue  # saved before the first update
-            if not opt.state:
-                opt.load_state_dict(self._stacked_state(theirs))
-            for p, st in zip(opt.param_groups[0]["params"], theirs["state"].values(), strict=True):
-                mine = opt.state[p]
-                if not torch.equal(mine["step"], st["step"]):
-                    raise ValueError(f"{k}: runs of one stack are at different steps")
-                mine["exp_avg"][rows] = st["exp_avg"]
-                mine["exp_avg_sq"][rows] = st["exp_avg_sq"]
-            opt.param_groups[0]["lr"] = theirs["param_groups"][0]["lr"]
-
-    def _stacked_state(self, one: dict) -> dict:
-        """An optimiser state for the whole stack, every run's moments tiled from one run's (then overwritten)."""
-        def tile(t):
-            return t.repeat(self.runs, *[1] * (t.dim() - 1))
-
-        return {"state": {i: {"step": st["step"].clone(), "exp_avg": tile(st["exp_avg"]),
-                              "exp_avg_sq": tile(st["exp_avg_sq"])} for i, st in one["state"].items()},
-                "param_groups": one["param_groups"]}

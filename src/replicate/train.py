@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from . import artifacts
+from . import artifacts, run_stack
 from .artifacts import CHECKPOINT_FORMAT, CheckpointError
 from .config import ConfigError, RunConfig, to_dict
 from .env import CoverageEnv
@@ -311,7 +311,8 @@ class Trainer:
         for k, coverage in enumerate(coverages):
             self.validation[k].append([episode, coverage])
             if self.best[k] is None or coverage >= self.best[k]["coverage"]:
-                self.best[k] = {"episode": episode, "coverage": coverage, "actor": self.agent.network_state("actor", k)}
+                actor = run_stack.network_state(self.agent, "actor", k)
+                self.best[k] = {"episode": episode, "coverage": coverage, "actor": actor}
         return coverages
 
     # ---- persistence: one folder per run, in the same form whatever the stack -------------------------------
@@ -329,7 +330,7 @@ class Trainer:
             state = {
                 "format": CHECKPOINT_FORMAT,
                 "identity": self.identity(k),
-                "agent": self.agent.state_dict(k),
+                "agent": run_stack.run_state(self.agent, k),
                 "buffer": self.buffers[k].state_dict(),
                 "rng": {
                     "env": self.env.rngs[k].bit_generator.state,
@@ -363,7 +364,7 @@ class Trainer:
             raise CheckpointError(f"the checkpoints in {', '.join(map(str, self.outs))} stand at different points")
         for k, (path, state) in enumerate(states):
             try:
-                self.agent.load_state_dict(state["agent"], k)
+                run_stack.load_run_state(self.agent, state["agent"], k)
                 self.buffers[k].load_state_dict(state["buffer"])
                 self.env.rngs[k].bit_generator.state = state["rng"]["env"]
                 self.noise_rngs[k].bit_generator.state = state["rng"]["noise"]
@@ -387,7 +388,7 @@ class Trainer:
                 "obs_dim": self.env.obs_dim,
                 "hidden": self.rc.algo.maddpg.hidden,
             }
-            last = {**meta, "actor": self.agent.network_state("actor", k), "selected_episode": None}
+            last = {**meta, "actor": run_stack.network_state(self.agent, "actor", k), "selected_episode": None}
             if self.best[k] is None:
                 artifacts.torch_save(out / "actors.pt", last)
                 continue
