@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import shapely
+import shapely.affinity
 
 from replicate.env import CoverageEnv
 
@@ -179,3 +180,14 @@ def test_lost_buoys_stop_and_leave_the_baselines(params, regions):
         env.lose(6, np.random.default_rng(0))
     env.reset(3)
     assert env.alive is None, "a reset brings every buoy back"
+
+
+def test_a_region_narrower_than_the_start_patch_is_refused_by_name(params):
+    """A river 3.8 km × 1 m scaled to the 9 m² world is 185 × 0.049 m: the 0.5 m start patch cannot fit. The env
+    says so, with the width, before it builds any geometry table (that took minutes for such a strip)."""
+    from replicate.regions import Region, RegionError
+
+    strip = shapely.box(0, 0, 3800, 1)
+    strip = shapely.affinity.scale(strip, (9 / strip.area) ** 0.5, (9 / strip.area) ** 0.5, origin=(0, 0))
+    with pytest.raises(RegionError, match=r"too narrow .* 0.5 m start patch: it is at most 0.0487 simulation m wide"):
+        CoverageEnv(Region("river", strip), params.world, params.coverage)

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from pettingzoo.test import parallel_api_test, parallel_seed_test
 
 from replicate.pettingzoo_env import CoverageParallelEnv
+
+from .conftest import ROOT
 
 
 @pytest.mark.parametrize("reward", ["cr", "sw"])
@@ -82,3 +86,17 @@ def test_torchrl_sees_the_coverage_info():
     wrapped = PettingZooWrapper(parallel_env(region="square", config="tuned", episode_length=10), use_mask=True)
     check_env_specs(wrapped)
     assert torchrl is not None
+
+
+@pytest.mark.slow
+def test_the_readme_ppo_snippet_runs():
+    """The README's SuperSuit + Stable-Baselines3 block, executed as written (about a minute)."""
+    pytest.importorskip("supersuit", reason="SuperSuit is an optional extra (pip install .[sb3])")
+    pytest.importorskip("stable_baselines3", reason="Stable-Baselines3 is an optional extra (pip install .[sb3])")
+    readme = (ROOT / "README.md").read_text()
+    block = re.search(r"```python\n(import supersuit.+?)```", readme, re.S)
+    assert block, "the README shows the SuperSuit + SB3 path"
+    scope: dict = {}
+    exec(block.group(1), scope)  # noqa: S102 - the README's own code
+    obs = scope["vec"].reset()
+    assert scope["model"].predict(obs, deterministic=True)[0].shape == (36, 2)  # 4 copies × 9 buoys

@@ -179,7 +179,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         result = evaluate_baseline(args.baseline, params, region, args.config, progress=True)
     artifacts.write_json(out, result)
     cov = result["coverage"]
-    print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f}, {cov['n']} episodes); wrote {out}")
+    print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes "
+          f"of this trained policy; a training seed of its own can land outside it); wrote {out}")
     return 0
 
 
@@ -223,7 +224,8 @@ def cmd_cover(args: argparse.Namespace) -> int:
     cov, lloyd = s["coverage"], s["lloyd_coverage"]
     print(f"{s['region']}: {s['n_agents']} buoys of radius {s['radius_m']:.3g} m on {s['area_m2']:.4g} m² "
           f"({s['utm_crs']}, 1 sim m = {s['scale_m_per_sim_m']:.4g} m), T = {s['episode_length']}")
-    print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f}) vs Lloyd {lloyd['mean']:.3f}: "
+    print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over evaluation episodes of this one "
+          f"trained policy; another training seed can land outside it) vs Lloyd {lloyd['mean']:.3f}: "
           f"{s['ratio_to_lloyd']:.0%} of the Lloyd layout; wrote {out}/")
     return 0
 

@@ -17,7 +17,7 @@ from shapely.ops import nearest_points
 from . import rewards
 from .config import CoverageConfig, CRRewardConfig, SWRewardConfig, WorldConfig
 from .geometry import CoverageGeometry
-from .regions import Region, signed_distance
+from .regions import Region, RegionError, signed_distance
 
 OBSERVATIONS = ("position", "position_velocity")
 STARTS = ("corner", "opposite", "random")  # config.StartsConfig.start
@@ -40,11 +40,20 @@ def start_patch(region: Polygon, side: float, at: str = "lower_left") -> Polygon
     minx, miny, maxx, maxy = region.bounds
     inner = region.buffer(-side / 2, join_style="mitre")
     if inner.is_empty:
-        raise ValueError(f"the region is too small for a {side} m start patch")
+        width = min(_sides(shapely.minimum_rotated_rectangle(region)))
+        raise RegionError(
+            f"the region is too narrow for the buoys' {side:g} m start patch: it is at most {width:.3g} simulation "
+            f"m wide (area {region.area:.3g} m²). Use a wider outline; for a long, narrow water keep its real size "
+            "with `cover --radius-m`, or set a smaller world.start_patch")
     corner = shapely.Point(minx, miny) if at == "lower_left" else shapely.Point(maxx, maxy)
     _, nearest = nearest_points(corner, inner)
     patch = box(nearest.x - side / 2, nearest.y - side / 2, nearest.x + side / 2, nearest.y + side / 2)
     return patch.intersection(region)
+
+
+def _sides(rect: Polygon) -> tuple[float, float]:
+    x, y = np.asarray(rect.exterior.coords)[:3].T
+    return float(np.hypot(x[1] - x[0], y[1] - y[0])), float(np.hypot(x[2] - x[1], y[2] - y[1]))
 
 
 class CoverageEnv:
@@ -91,10 +100,10 @@ class CoverageEnv:
         self.observation = observation
         self.union_credit = union_credit
         self.obs_dim = 2 if observation == "position" else 4
+        self.patch = start_patch(region.polygon, world.start_patch)  # first: it refuses a region too narrow
         self.geometry = CoverageGeometry(
             region.polygon, coverage.radius, coverage.edges, coverage.table_spacing, coverage.raster_spacing
         )
-        self.patch = start_patch(region.polygon, world.start_patch)
         self.start = "corner"  # where ``reset`` releases the buoys (``STARTS``)
         self.alive: np.ndarray | None = None  # [E, N] bool once a buoy is lost (``lose``); None: all alive
         if geofence is None:
