@@ -290,19 +290,21 @@ def cmd_animate(args: argparse.Namespace) -> int:
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
+    from .executor import configured_executor
     from .tuning import tune_baselines, tune_method
 
     params = load_params(args.params, overrides(args.set))
+    executor = configured_executor(params, args.executor)
     if args.what == "baselines":
         names = params.stages.get("pipeline", {}).get("regions", list(params.regions))
-        result = {"baselines": tune_baselines(params, {r: resolve_region(r, params) for r in names})}
+        result = {"baselines": tune_baselines(params, {r: resolve_region(r, params) for r in names}, executor)}
         out = Path(args.out or "metrics/tuning/baselines.json")
         artifacts.write_json(out, result["baselines"])
         for key, b in result["baselines"].items():
             print(f"{key}: tuning coverage {b['tuning_coverage']:.3f} with {b['gains']} ({b['trials']} trials)")
     else:
         ms = params.tuning.method
-        result = tune_method(params, {r: resolve_region(r, params) for r in ms.regions})
+        result = tune_method(params, {r: resolve_region(r, params) for r in ms.regions}, executor)
         out = Path(args.out or ms.result)
         artifacts.write_json(out, result)
         print(f"{ms.config} {ms.method.upper()}-MARL: tuning coverage {result['tuning_coverage']:.3f} with "
@@ -421,6 +423,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "tuning.method's training values (trials train on the tuning seeds)")
     u.add_argument("--out", default=None,
                    help="JSON of the best values (default: metrics/tuning/baselines.json, or tuning.method.result)")
+    u.add_argument("--executor", choices=("local", "ray"), default=None,
+                   help="where trials run: local (one after another) or ray (Ray tasks; RAY_ADDRESS joins a "
+                        "cluster; several `replicate tune` may share one study through a storage URL) (default: "
+                        "pipeline.executor)")
     u.set_defaults(func=cmd_tune)
 
     i = sub.add_parser("init", help="write an editable params.yaml with every default value into a folder", **verb)

@@ -17,12 +17,14 @@ Every trial records its CPU seconds, so the report states each search's budget.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import shutil
 import tempfile
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -30,9 +32,10 @@ import numpy as np
 from . import baselines, metrics
 from .config import Dimension, LloydConfig, NaiveConfig, Params, run_config, to_dict, with_values
 from .env import CoverageEnv
+from .executor import map_jobs, parallel_slots
 from .geometry import region_key
 from .regions import Region
-from .train import TRAINING_VERSION
+from .train import TRAINING_VERSION, training_process
 
 BASELINE_KINDS = ("naive", "lloyd")
 
@@ -77,13 +80,41 @@ def suggest(trial, space: dict[str, Dimension]) -> dict:
     return values
 
 
-def run_trials(study, objective, trials: int) -> None:
-    """Complete the study to ``trials`` finished trials (a resumed study runs only the missing ones)."""
+def run_trials(study, score: Callable[[dict], tuple[float, float]], space: dict[str, Dimension], trials: int,
+               executor: str = "local") -> None:
+    """Complete the study to ``trials`` finished trials (a resumed study runs only the missing ones); a trial
+    draws values for ``space`` and ``score(values)`` gives (value, CPU seconds).
+
+    ``local``: one trial after another in this process, TPE seeing every result before its next draw (the order
+    the committed studies were run in). ``ray``: batches of as many trials as the cluster has CPUs, each trial a
+    Ray task (TPE draws a batch before it sees its results). Any number of processes may work on one study at
+    once through a shared storage URL."""
     import optuna
 
-    done = len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)))
-    if done < trials:
-        study.optimize(objective, n_trials=trials - done)
+    def finished() -> int:
+        return len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)))
+
+    if executor == "local":
+        def objective(trial) -> float:
+            value, cpu = score(suggest(trial, space))
+            trial.set_user_attr("cpu_seconds", cpu)
+            return value
+
+        if finished() < trials:
+            study.optimize(objective, n_trials=trials - finished())
+        return
+    slots = parallel_slots(executor, 1)
+    while (done := finished()) < trials:
+        batch = [study.ask() for _ in range(min(slots, trials - done))]
+        try:
+            results = map_jobs(score, [suggest(t, space) for t in batch], executor)
+        except BaseException:
+            for t in batch:
+                study.tell(t, state=optuna.trial.TrialState.FAIL)
+            raise
+        for t, (value, cpu) in zip(batch, results, strict=True):
+            t.set_user_attr("cpu_seconds", cpu)
+            study.tell(t, value)
 
 
 def cpu_seconds(study) -> float:
@@ -119,7 +150,13 @@ def baseline_coverage(kind: str, gains: dict, params: Params, region: Region, se
     return float(metrics.coverage_fraction(region.polygon, env.pos, rc.coverage.radius, rc.coverage.edges).mean())
 
 
-def tune_baseline(params: Params, region: Region, kind: str) -> dict:
+def baseline_score(kind: str, params: Params, region: Region, seed: int, episodes: int, gains: dict):
+    """One baseline trial: (coverage, CPU seconds)."""
+    t0 = time.process_time()
+    return baseline_coverage(kind, gains, params, region, seed, episodes), time.process_time() - t0
+
+
+def tune_baseline(params: Params, region: Region, kind: str, executor: str = "local") -> dict:
     """The ``kind`` baseline's study on ``region``: best gains, their tuning coverage, the budget."""
     tc = params.tuning
     search = getattr(tc.baselines, kind)
@@ -127,21 +164,15 @@ def tune_baseline(params: Params, region: Region, kind: str) -> dict:
     name = study_name(f"{kind}-{region.name}", search.space, tc.starts_seed, tc.starts, tc.sampler_seed,
                       region_key(region.polygon), rc.world, rc.coverage)
     study = open_study(tc.baselines.storage, name, tc.sampler_seed)
-
-    def objective(trial) -> float:
-        t0 = time.process_time()
-        value = baseline_coverage(kind, suggest(trial, search.space), params, region, tc.starts_seed, tc.starts)
-        trial.set_user_attr("cpu_seconds", time.process_time() - t0)
-        return value
-
-    run_trials(study, objective, search.trials)
+    score = functools.partial(baseline_score, kind, params, region, tc.starts_seed, tc.starts)
+    run_trials(study, score, search.space, search.trials, executor)
     return {"gains": dict(study.best_params), "tuning_coverage": study.best_value, **budget(study),
             "storage": tc.baselines.storage}
 
 
-def tune_baselines(params: Params, regions: dict[str, Region]) -> dict:
+def tune_baselines(params: Params, regions: dict[str, Region], executor: str = "local") -> dict:
     """Every baseline kind on every region → ``{"KIND/REGION": tune_baseline(...)}``."""
-    return {f"{kind}/{name}": tune_baseline(params, region, kind)
+    return {f"{kind}/{name}": tune_baseline(params, region, kind, executor)
             for kind in BASELINE_KINDS for name, region in regions.items()}
 
 
@@ -188,7 +219,20 @@ def method_trial(params: Params, region: Region, values: dict, workdir: Path) ->
     return float(np.mean(scores))
 
 
-def tune_method(params: Params, regions: dict[str, Region]) -> dict:
+def method_score(params: Params, regions: dict[str, Region], values: dict) -> tuple[float, float]:
+    """One method trial: the mean score of ``method_trial`` over the regions, and its CPU seconds."""
+    training_process()  # a trial trains: in a Ray worker as in the CLI's process
+    t0 = time.process_time()
+    workdir = Path(tempfile.mkdtemp(prefix="replicate-trial-"))
+    try:
+        score = float(np.mean([method_trial(params, region, values, workdir / name)
+                               for name, region in regions.items()]))
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+    return score, time.process_time() - t0
+
+
+def tune_method(params: Params, regions: dict[str, Region], executor: str = "local") -> dict:
     """The ``tuning.method`` study: trials train on every region of ``tuning.method.regions`` and score their
     mean coverage. → best values, best score, budget."""
     ms, tc = params.tuning.method, params.tuning
@@ -198,22 +242,11 @@ def tune_method(params: Params, regions: dict[str, Region]) -> dict:
                       tc.sampler_seed, [region_key(regions[r].polygon) for r in ms.regions], rcs,
                       TRAINING_VERSION)
     study = open_study(ms.storage, name, tc.sampler_seed)
-
-    def objective(trial) -> float:
-        t0 = time.process_time()
-        values = suggest(trial, ms.space)
-        workdir = Path(tempfile.mkdtemp(prefix="replicate-trial-"))
-        try:
-            score = float(np.mean([method_trial(params, regions[r], values, workdir / r) for r in ms.regions]))
-        finally:
-            shutil.rmtree(workdir, ignore_errors=True)
-        trial.set_user_attr("cpu_seconds", time.process_time() - t0)
-        return score
-
+    score = functools.partial(method_score, params, {r: regions[r] for r in ms.regions})
     incumbent = incumbent_values(params)
     if not any(t.params == incumbent for t in study.trials):
         study.enqueue_trial(incumbent)  # the config's own values are a trial: the search can only improve on them
-    run_trials(study, objective, ms.trials)
+    run_trials(study, score, ms.space, ms.trials, executor)
     return {"values": dict(study.best_params), "tuning_coverage": study.best_value, **budget(study),
             "storage": ms.storage, "incumbent": incumbent, "incumbent_coverage": next(
                 (t.value for t in study.trials if t.params == incumbent and t.value is not None), None)}

@@ -5,12 +5,12 @@ bootstrap intervals, the robustness scenarios, the ablation's rows)."""
 from __future__ import annotations
 
 import json
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from .. import artifacts, stats
 from ..config import Cell, Params, ablated_name, load_params, run_config, selection_only
 from ..evaluate import BASELINES, evaluate_baseline, evaluate_run, read_curve
+from ..executor import map_jobs
 from ..regions import make_region
 from ..train import CURVE
 from .matrix import cell_seeds
@@ -47,9 +47,9 @@ def selection_ablation_jobs(params_path: str, params: Params, run: Path, ident: 
 
 
 def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, workers: int,
-                    tuned_baselines: str | Path) -> dict:
+                    tuned_baselines: str | Path, executor: str = "local") -> dict:
     """SPEC §8 metrics of every run in ``runs_dir`` and of every baseline on every region (the tuned ones with the
-    gains in ``tuned_baselines``); a summary table."""
+    gains in ``tuned_baselines``), in ``workers`` processes or as Ray tasks (``executor``); a summary table."""
     metrics_dir = Path(metrics_dir)
     params = load_params(params_path)
     tuned = json.loads(Path(tuned_baselines).read_text())
@@ -73,8 +73,7 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
              "tuned": tuned.get(f"{name.removesuffix('_tuned')}/{region}") if name.endswith("_tuned") else None,
              "out": str(metrics_dir / "baselines" / f"{name}-{region}.json")}
             for name in BASELINES for region in regions] + jobs
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        results = dict(pool.map(_evaluate_one, jobs))
+    results = dict(map_jobs(_evaluate_one, jobs, executor, workers))
     summary = summarise_metrics(results.values(), stats.Bootstrap(params.report.level, params.report.resamples,
                                                                    params.report.seed))
     summary = split_ablation(summary, params)

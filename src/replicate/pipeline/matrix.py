@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from .. import artifacts
 from ..config import ablated_name, load_params, run_config, selection_only
+from ..executor import map_jobs
 from ..regions import make_region
 from ..train import core_seconds, finished_run, run_identity, train_runs, training_process
 
@@ -81,10 +81,11 @@ def matrix_cells(params, configs, methods, regions, ablation: bool) -> list[tupl
 
 
 def train_matrix(params_path: str, configs, methods, regions, episodes: int, runs_dir: str, workers: int,
-                 ablation: bool = False):
+                 ablation: bool = False, executor: str = "local"):
     """Train every config × method × region × seed of the config (``train.seeds``), ``workers`` processes at a
-    time (one per core), then with ``ablation`` the runs of ``params.ablation`` (its seeds, same episodes). Each
-    process trains one cell's seeds together (``_train_cell``), the costliest cells first.
+    time (one per core; with ``executor="ray"`` one Ray task per cell on the cluster's CPUs), then with
+    ``ablation`` the runs of ``params.ablation`` (its seeds, same episodes). Each process trains one cell's seeds
+    together (``_train_cell``), the costliest cells first.
 
     Run again, the matrix skips runs already finished with identical settings and resumes interrupted ones
     from their checkpoints, so adding seeds or a configuration trains only what is new."""
@@ -98,8 +99,7 @@ def train_matrix(params_path: str, configs, methods, regions, episodes: int, run
     jobs.sort(key=lambda j: -len(j["seeds"]) * run_cost(run_config(params, j["config"], j["method"], j["region"]),
                                                         episodes))
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        summaries = [s for cell in pool.map(_train_cell, jobs) for s in cell]
+    summaries = [s for cell in map_jobs(_train_cell, jobs, executor, workers) for s in cell]
     wall = time.perf_counter() - t0
     keys = ("config", "method", "region", "seed", "wall_seconds", "final_coverage_last100")
     table = [{**{k: s[k] for k in keys}, "runs_in_process": s.get("runs_in_process", 1),
