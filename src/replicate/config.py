@@ -129,6 +129,9 @@ class AlgoConfig:
     union_weight: float | None = None  # c2 of eq. (6) for this config; None = cr_reward.c2
     select_every: int = 0  # episodes between validation rollouts that pick the kept actors; 0 = keep the last
     select_episodes: int = 20  # validation episodes (fixed starts, deterministic policy) per selection
+    # "fence": the geofence above bounds the world (None: the paper's open plane); "wall": the shoreline does,
+    # no buoy ever leaves the water (``shore.wall_step``)
+    shore: Literal["fence", "wall"] = "fence"
     # Values for one method only, chosen by that method's own search (``params.yaml`` ``tuning.method``):
     # method → {dotted key inside this config: value}. ``run_config`` applies them; a run's config holds none.
     per_method: dict[str, dict[str, Any]] | None = None

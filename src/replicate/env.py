@@ -18,6 +18,7 @@ from . import rewards
 from .config import CoverageConfig, CRRewardConfig, SWRewardConfig, WorldConfig
 from .geometry import CoverageGeometry
 from .regions import Region, RegionError, signed_distance
+from .shore import near_shore, wall_step
 
 OBSERVATIONS = ("position", "position_velocity")
 STARTS = ("corner", "opposite", "random")  # config.StartsConfig.start
@@ -62,7 +63,8 @@ class CoverageEnv:
     ``reward`` is ``"sw"`` (eq. sw-RegAtt + sw-InterAg, shared), ``"cr"`` (eq. 5-6, per agent) or ``None``
     (no reward, for baselines). ``union_credit`` ``"difference"`` replaces eq. (6)'s shared union term by each
     agent's marginal contribution to it (SPEC §6 lead). ``geofence`` (metres, or ``None``) clamps positions
-    to the region's box grown by that margin and stops the velocity component into the fence.
+    to the region's box grown by that margin and stops the velocity component into the fence. ``wall=True``
+    makes the shoreline a wall instead (``shore.wall_step``): no buoy ever leaves the water.
     """
 
     def __init__(
@@ -77,6 +79,7 @@ class CoverageEnv:
         cr: CRRewardConfig | None = None,
         observation: str = "position",
         geofence: float | None = None,
+        wall: bool = False,
         union_credit: str = "shared",
         seed: int | np.random.SeedSequence | list = 0,
     ):
@@ -102,10 +105,17 @@ class CoverageEnv:
         self.obs_dim = 2 if observation == "position" else 4
         self.patch = start_patch(region.polygon, world.start_patch)  # first: it refuses a region too narrow
         self.geometry = CoverageGeometry(
-            region.polygon, coverage.radius, coverage.edges, coverage.table_spacing, coverage.raster_spacing
+            region.polygon, coverage.radius, coverage.edges, coverage.table_spacing, coverage.raster_spacing,
+            closed=wall,
         )
         self.start = "corner"  # where ``reset`` releases the buoys (``STARTS``)
         self.alive: np.ndarray | None = None  # [E, N] bool once a buoy is lost (``lose``); None: all alive
+        self.wall = wall
+        self.shore_band = None  # the water a step can leave from (``shore.near_shore``); None: check every step
+        if wall and world.damping > 0:  # |v| ≤ √2·(F/m)·dt/damping with each action component in [−1, 1]
+            reach = 1.01 * np.sqrt(2.0) * world.sensitivity / world.mass * world.dt / world.damping * world.dt
+            self.shore_band = near_shore(region.polygon, reach)
+            shapely.prepare(self.shore_band)
         if geofence is None:
             self.fence = None
         else:
@@ -194,7 +204,12 @@ class CoverageEnv:
         self.vel = self.vel * (1.0 - w.damping) + (force / w.mass) * w.dt
         if self.alive is not None:  # lost buoys stay where they were lost
             self.vel = np.where(self.alive[..., None], self.vel, 0.0)
-        self.pos = self.pos + self.vel * w.dt
+        end = self.pos + self.vel * w.dt
+        if self.wall:
+            pos, vel = wall_step(self.region.polygon, self.pos.reshape(-1, 2), end.reshape(-1, 2),
+                                 self.vel.reshape(-1, 2), self.shore_band)
+            end, self.vel = pos.reshape(end.shape), vel.reshape(end.shape)
+        self.pos = end
         if self.fence is not None:
             lo, hi = self.fence
             clamped = np.clip(self.pos, lo, hi)

@@ -147,6 +147,7 @@ def eval_env(region: Region, rc: RunConfig, episodes: int, observation: str = "p
         n_envs=episodes,
         observation=observation,
         geofence=rc.algo.geofence,
+        wall=rc.algo.shore == "wall",
     )
 
 

@@ -102,14 +102,23 @@ def minkowski(region: Polygon, offsets: np.ndarray) -> tuple[Polygon, Polygon]:
 
 
 class CoverageGeometry:
-    """Fast, batched eq. (5)/(6) geometry for one region and one coverage polygon (see module docstring)."""
+    """Fast, batched eq. (5)/(6) geometry for one region and one coverage polygon (see module docstring).
 
-    def __init__(self, region: Polygon, radius: float, edges: int, table_spacing: float, raster_spacing: float):
+    ``closed=True`` reads eq. (5)'s cases with closed sets, as the shapely reference does: a coverage polygon
+    touching the shore from inside is "inside", one touching it from outside "partial" (area 0). With
+    ``closed=False`` both exact contacts fall to the next case ("partial", "disjoint"): the branches the
+    ``paper`` and ``tuned`` runs were trained with, kept for them. A buoy clamped to the ``tuned`` geofence at
+    R from the region's side touches it from outside exactly, so the two readings train differently there; the
+    shore wall keeps buoys in contact all the time and uses closed sets."""
+
+    def __init__(self, region: Polygon, radius: float, edges: int, table_spacing: float, raster_spacing: float,
+                 closed: bool = False):
         if table_spacing <= 0 or raster_spacing <= 0:
             raise ValueError("table_spacing and raster_spacing must be positive")
         self.region = region
         self.radius = radius
         self.edges = edges
+        self.closed = closed
         self.offsets = polygon_offsets(radius, edges)
         self.cov_area = float(Polygon(self.offsets).area)
         self.eroded, self.dilated = minkowski(region, self.offsets)
@@ -128,8 +137,9 @@ class CoverageGeometry:
         """eq. (5)'s cases for every agent. xy: [E, N, 2] → CoverTerms of [E, N] arrays."""
         flat = xy.reshape(-1, 2)
         x, y = flat[:, 0], flat[:, 1]
-        inside = shapely.contains_xy(self.eroded, x, y)
-        touching = shapely.contains_xy(self.dilated, x, y)
+        test = shapely.intersects_xy if self.closed else shapely.contains_xy
+        inside = test(self.eroded, x, y)
+        touching = test(self.dilated, x, y)
         disjoint = ~touching
         area = np.where(inside, self.cov_area, 0.0)
         partial = touching & ~inside

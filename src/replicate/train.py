@@ -101,6 +101,7 @@ def make_env(region: Region, rc: RunConfig, n_envs: int, seed, reward: bool = Tr
         cr=cr,
         observation=rc.algo.observation,
         geofence=rc.algo.geofence,
+        wall=rc.algo.shore == "wall",
         union_credit=rc.algo.union_credit,
         seed=seed,
     )

@@ -142,7 +142,8 @@ def baseline_coverage(kind: str, gains: dict, params: Params, region: Region, se
     """Mean exact coverage of a baseline with ``gains`` at the region's T from the corner start, ``episodes``
     starts drawn from ``seed``."""
     rc = run_config(params, "paper", "cr", region.name)
-    env = CoverageEnv(region, rc.world, rc.coverage, n_envs=episodes, geofence=rc.algo.geofence)
+    env = CoverageEnv(region, rc.world, rc.coverage, n_envs=episodes, geofence=rc.algo.geofence,
+                      wall=rc.algo.shore == "wall")
     env.reset(seed)
     policy = baseline_policy(kind, gains, params)
     for _ in range(rc.world.episode_length):
