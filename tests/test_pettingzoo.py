@@ -100,3 +100,17 @@ def test_the_readme_ppo_snippet_runs():
     exec(block.group(1), scope)  # noqa: S102 - the README's own code
     obs = scope["vec"].reset()
     assert scope["model"].predict(obs, deterministic=True)[0].shape == (36, 2)  # 4 copies × 9 buoys
+
+
+def test_the_shore_wall_option_passes_the_api_and_seed_tests():
+    """``shore="wall"`` on Bedok: PettingZoo's API and seed tests, and every observation inside the water."""
+    from replicate.shore import distance_outside
+
+    env = CoverageParallelEnv("bedok", config="tuned", shore="wall", episode_length=30)
+    parallel_api_test(env, num_cycles=40)
+    parallel_seed_test(lambda: CoverageParallelEnv("bedok", config="tuned", shore="wall", episode_length=30))
+    obs, _ = env.reset(seed=1)
+    while env.agents:
+        obs, *_ = env.step({a: np.array([1.0, -1.0], np.float32) for a in env.agents})
+        xy = np.stack([o[:2] for o in obs.values()]).astype(float)
+        assert distance_outside(env.core.region.polygon, xy).max() < 1e-6  # float32 observations

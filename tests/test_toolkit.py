@@ -106,7 +106,7 @@ def test_one_cli_shape_for_every_verb(small_run, tmp_path):
                str(out)).wait(600) == 0
     assert json.loads(out.read_text())["coverage"]["n"] == 3
     assert cli("--set", observes, "evaluate", str(small_run), "--set", "evaluate.episodes=4",
-               "--out", str(out)).wait(600) == 0
+               "--out", str(out), "--force").wait(600) == 0  # the first result is replaced only with --force
     assert json.loads(out.read_text())["coverage"]["n"] == 4  # both --set, before and after the verb, apply
     assert cli("export", str(small_run), "--out", str(tmp_path / "p.pt")).wait(600) == 0
     for verb in ("train", "evaluate", "cover", "animate", "tune", "init", "export", "act"):
@@ -142,6 +142,10 @@ def test_cover_a_lake_the_repo_does_not_ship(tmp_path):
     assert 0.0 <= summary["coverage"]["mean"] <= ceiling + 1e-9
     assert 0.8 * ceiling < summary["lloyd_coverage"]["mean"] <= ceiling + 1e-9
     assert (tmp_path / "out" / "spread.png").exists()
+    (tmp_path / "lake.geojson").unlink()  # the run folder records its region: export needs nothing else
+    export = cli("export", str(tmp_path / "out" / "run"), "--out", str(tmp_path / "lake.pt"), stderr=subprocess.PIPE,
+                 text=True)
+    assert export.wait(timeout=300) == 0, export.stderr.read()
 
 
 def test_cover_place_offline_names_the_alternative(tmp_path):

@@ -8,11 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from . import plots
-from .config import Params, run_config
-from .evaluate import actor_policy, eval_env, rollout
+from .config import Params
+from .evaluate import actor_policy, eval_env, rollout, run_actors
 from .geometry import coverage_fraction_exact, coverage_polygons
 from .regions import Region
-from .train import load_actors
 
 
 def animate_run(run_dir: str | Path, params: Params, region: Region, out: str | Path, seed: int | None = None,
@@ -21,9 +20,8 @@ def animate_run(run_dir: str | Path, params: Params, region: Region, out: str | 
     from matplotlib.animation import FuncAnimation, PillowWriter
     from matplotlib.patches import Polygon as MplPolygon
 
-    net, meta = load_actors(Path(run_dir) / "actors.pt")
+    net, meta, rc = run_actors(Path(run_dir), params)
     ident = meta["identity"]
-    rc = run_config(params, ident["config"], ident["method"], ident["region"])
     env = eval_env(region, rc, 1, meta["observation"])  # what the actors were trained to observe
     trace = rollout(env, actor_policy(net, meta["observation"]), rc.world.episode_length,
                     params.evaluate.seed if seed is None else seed)["positions"][:, 0]  # [T + 1, N, 2]

@@ -15,7 +15,7 @@ import shapely
 from . import artifacts
 from .artifacts import CheckpointError
 from .config import MAX_AGENTS, ConfigError, Params, check_seed, load_params, positive, run_config
-from .regions import Region, RegionError, make_region, region_from_file
+from .regions import Region, RegionError, make_region, read_run_region, region_from_file, write_run_region
 
 
 def resolve_region(name_or_path: str, params: Params) -> Region:
@@ -45,6 +45,24 @@ def resume_command(run: Path) -> str:
     import shlex
 
     return f"replicate train --resume {shlex.quote(str(run))}"
+
+
+def claim_out_file(out: Path, force: bool, option: str = "--out") -> Path:
+    """Check an output file before any work: not a folder, in a folder that exists (or can be made) and can be
+    written, and not a finished result unless ``force``."""
+    out = Path(out)
+    if out.is_dir():
+        raise ConfigError(f"{option} {out}: is a folder; give the path of a file")
+    if out.exists() and not force:
+        raise ConfigError(f"{option} {out}: exists; pass --force to replace it, or choose another path")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{option} {out}: cannot create its folder ({exc.strerror}); choose a writable folder") \
+            from None
+    if not os.access(out.parent, os.W_OK):
+        raise ConfigError(f"{option} {out}: its folder is not writable; choose a writable folder")
+    return out
 
 
 def claim_run_folder(out: Path, force: bool) -> bool:
@@ -102,13 +120,7 @@ def resumed_run(run: Path, params: Params):
         episodes, seed, name = int(ident["episodes"]), int(ident["seed"]), ident["region"]
     except (KeyError, TypeError, ValueError) as exc:
         raise CheckpointError(f"{run}/checkpoint.pt: checkpoint is incomplete or mismatched ({exc})") from exc
-    wkt = run / "region.wkt"
-    if wkt.exists():
-        import shapely
-
-        region = Region(name, shapely.from_wkt(wkt.read_text()))
-    else:
-        region = resolve_region(name, params)
+    region = read_run_region(run) or resolve_region(name, params)
     if region_key(region.polygon) != ident.get("region_key"):
         raise CheckpointError(f"{run}: region {name!r} is not the one the run was started on")
     return rc, region, episodes, seed
@@ -135,7 +147,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     created = False
     if not args.resume:
         created = claim_run_folder(out, args.force)
-        artifacts.atomic_write_text(out / "region.wkt", region.polygon.wkt)  # so --resume needs only the folder
+        write_run_region(out, region)  # so --resume, evaluate and export need only the folder
     t0 = time.perf_counter()
     try:
         summary = train(rc, region, episodes, seed, out,
@@ -170,9 +182,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         resolve_region(args.region, params)
     default = (Path(args.run) / "metrics.json" if args.run is not None
                else Path(f"metrics/baseline-{args.baseline}-{region.name}.json"))
-    out = Path(args.out) if args.out else default
-    if out.is_dir():
-        raise ConfigError(f"--out {out}: is a folder; give the path of a JSON file")
+    out = claim_out_file(Path(args.out) if args.out else default, args.force)
     if args.run is not None:
         result = evaluate_run(args.run, params, region, progress=True)
     else:
@@ -184,18 +194,33 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_region(run_dir: str, params: Params, region: str | None) -> Region:
+def run_record(run: Path) -> dict:
+    """A run folder's ``run.json``, refused by name when it is missing, unreadable or not a run's record."""
     import json
 
-    path = Path(run_dir) / "run.json"
-    if not path.exists():
-        if region is None:
-            raise FileNotFoundError(f"{path}: not a run folder (no run.json); pass --region")
-        return resolve_region(region, params)
-    own = json.loads(path.read_text())["region"]
-    chosen = resolve_region(region or own, params)
-    if chosen.name != own:
-        print(f"note: {run_dir} was trained on {own!r}; evaluating it on {chosen.name!r} (its actors observe "
+    path = Path(run) / "run.json"
+    try:
+        record = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise CheckpointError(f"{run}: not a run folder (no run.json); give a folder that `replicate train` "
+                              "wrote") from None
+    except (OSError, ValueError) as exc:
+        raise CheckpointError(f"{path}: not a readable run record ({exc}); the run folder is damaged") from None
+    if not isinstance(record, dict) or "region" not in record:
+        raise CheckpointError(f"{path}: not a run's record (no region); the run folder is damaged")
+    return record
+
+
+def run_region(run_dir: str, params: Params, region: str | None) -> Region:
+    """The region to evaluate a run on: ``region`` if given, else the run's own (recorded in the run folder by
+    ``write_run_region``, or named in its run.json)."""
+    own_name = run_record(Path(run_dir))["region"]
+    own = read_run_region(Path(run_dir))
+    if region is None:
+        return own if own is not None else resolve_region(own_name, params)
+    chosen = resolve_region(region, params)
+    if chosen.name != own_name:
+        print(f"note: {run_dir} was trained on {own_name!r}; evaluating it on {chosen.name!r} (its actors observe "
               "absolute positions, so they know only the region they were trained on)", file=sys.stderr)
     return chosen
 
@@ -249,7 +274,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.run is None:
         raise ConfigError("export needs a run folder: `replicate export RUN`")
     region = run_region(args.run, params, args.region)
-    out = Path(args.out or Path(args.run) / "policy.pt")
+    out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force)
     meta = export_policy(Path(args.run) / "actors.pt", region, out, params.world.sensitivity)
     print(f"exported {meta['n_agents']} actors ({meta['observation']}) for {meta['region']} to {out}")
     return 0
@@ -262,6 +287,9 @@ def cmd_act(args: argparse.Namespace) -> int:
 
     from .export import act
 
+    if args.obs_file not in (None, "-") and not Path(args.obs_file).is_file():
+        raise ConfigError(f"--obs-file {args.obs_file}: no such file; give a JSON file with an [N, obs_dim] list, "
+                          "or - for standard input")
     try:
         if args.obs is not None:
             obs = np.array([[float(v) for v in row.split(",")] for row in args.obs.split(";")])
@@ -280,11 +308,14 @@ def cmd_act(args: argparse.Namespace) -> int:
 
 
 def cmd_animate(args: argparse.Namespace) -> int:
-    from .animate import animate_run
-
     params = load_params(args.params, overrides(args.set))
     region = run_region(args.run, params, args.region)
-    out = animate_run(args.run, params, region, args.out or Path(args.run) / "episode.gif", args.seed, progress=True)
+    if args.seed is not None:
+        check_seed(args.seed)
+    out = claim_out_file(Path(args.out or Path(args.run) / "episode.gif"), args.force)
+    from .animate import animate_run  # matplotlib's import is seconds: only once the inputs are known good
+
+    out = animate_run(args.run, params, region, out, args.seed, progress=True)
     print(f"wrote {out}")
     return 0
 
@@ -317,11 +348,9 @@ def cmd_tune(args: argparse.Namespace) -> int:
 def cmd_init(args: argparse.Namespace) -> int:
     from .config import packaged
 
-    target = Path(args.dir) / "params.yaml"
-    if target.exists() and not args.force:
-        raise ConfigError(f"{target}: already exists; pass --force to replace it with the defaults")
     if Path(args.dir).exists() and not Path(args.dir).is_dir():
         raise ConfigError(f"{args.dir}: is a file; choose a folder")
+    target = claim_out_file(Path(args.dir) / "params.yaml", args.force, "init")
     artifacts.atomic_write_bytes(target, packaged("params.yaml").read_bytes())
     print(f"wrote {target}: every value of the toolkit, commented; edit it and pass --params {target} (or run "
           f"from {args.dir})")
@@ -385,6 +414,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--config", default="paper", help="a baseline runs with this config's physics and T")
     e.add_argument("--out", default=None,
                    help="output JSON (default: RUN/metrics.json, or metrics/baseline-NAME-REGION.json)")
+    e.add_argument("--force", action="store_true", help="replace --out if it exists")
     e.set_defaults(func=cmd_evaluate)
 
     c = sub.add_parser("cover", help="train CR-MARL on any waterbody and compare with the Lloyd layout", **verb)
@@ -407,6 +437,7 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("--run", dest="run_option", default=None, help=argparse.SUPPRESS)
     x.add_argument("--region", default=None, help=f"{regions} (default: the run's own)")
     x.add_argument("--out", default=None, help="TorchScript file (default: RUN/policy.pt)")
+    x.add_argument("--force", action="store_true", help="replace --out if it exists")
     x.set_defaults(func=cmd_export)
 
     a = sub.add_parser("act", help="map observations to commands with an exported policy (prints JSON)", **verb)
@@ -439,6 +470,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--region", default=None, help=f"{regions} (default: the run's own)")
     m.add_argument("--seed", type=int, default=None, help="starts of the episode (default: evaluate.seed)")
     m.add_argument("--out", default=None, help="GIF file (default: RUN/episode.gif)")
+    m.add_argument("--force", action="store_true", help="replace --out if it exists")
     m.set_defaults(func=cmd_animate)
     return parser
 

@@ -44,6 +44,54 @@ def positive(value: float, where: str) -> float:
     return value
 
 
+def within(value: float, where: str, lo: float, hi: float = math.inf, open_lo: bool = False) -> float:
+    """``value`` if it is a finite number in [lo, hi] ((lo, hi] with ``open_lo``), else a ConfigError naming
+    ``where`` and the range."""
+    ok = isinstance(value, (int, float)) and math.isfinite(value) and (value > lo if open_lo else value >= lo)
+    if not (ok and value <= hi):
+        span = f"{'(' if open_lo else '['}{lo:g}, {hi:g}]" if math.isfinite(hi) else \
+            (f"above {lo:g}" if open_lo else f"at least {lo:g}")
+        raise ConfigError(f"{where} must be {'in ' if math.isfinite(hi) else ''}{span}, got {value!r}")
+    return value
+
+
+# The ranges a training config's values must lie in: key inside a config → (lowest, highest, lowest excluded).
+ALGO_RANGES: dict[str, tuple[float, float, bool]] = {
+    "reward_scale": (0, math.inf, True),
+    "n_envs": (1, math.inf, False),
+    "select_every": (0, math.inf, False),
+    "select_episodes": (1, math.inf, False),
+    "maddpg.hidden": (1, math.inf, False),
+    "maddpg.actor_lr": (0, math.inf, True),
+    "maddpg.critic_lr": (0, math.inf, True),
+    "maddpg.gamma": (0, 1, True),
+    "maddpg.tau": (0, 1, True),
+    "maddpg.batch_size": (1, math.inf, False),
+    "maddpg.buffer_size": (1, math.inf, False),
+    "maddpg.learning_starts": (0, math.inf, False),
+    "maddpg.update_every": (0, math.inf, True),
+    "maddpg.grad_clip": (0, math.inf, True),
+    "maddpg.actor_reg": (0, math.inf, False),
+    "maddpg.noise_start": (0, math.inf, False),
+    "maddpg.noise_end": (0, math.inf, False),
+    "maddpg.noise_decay": (0, 1, False),
+    "maddpg.lr_end": (0, math.inf, False),
+    "maddpg.n_step": (1, math.inf, False),
+}
+
+
+def check_algo(algo: AlgoConfig, where: str) -> None:
+    """Every value of ``ALGO_RANGES`` in its range, and the optional ones (geofence, union weight) ≥ 0."""
+    for dotted, (lo, hi, open_lo) in ALGO_RANGES.items():
+        node = algo
+        for part in dotted.split("."):
+            node = getattr(node, part)
+        within(node, f"{where}.{dotted}", lo, hi, open_lo)
+    for key in ("geofence", "union_weight"):
+        if getattr(algo, key) is not None:
+            within(getattr(algo, key), f"{where}.{key}", 0)
+
+
 def check_seed(seed: int, where: str = "--seed") -> int:
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
         raise ConfigError(f"{where} must be a whole number from 0 to {MAX_SEED}, got {seed!r}")
@@ -365,11 +413,13 @@ class Params:
             if name not in self.train.seeds:
                 raise ConfigError(f"train.seeds: no seeds for config {name!r}")
         for name, algo in self.configs.items():
-            for method in algo.per_method or {}:
-                method_config(self, name, method)  # every key must exist and type-check
+            check_algo(algo, f"configs.{name}")
         for name, algo in self.configs.items():
-            if algo.maddpg.n_step < 1:
-                raise ConfigError(f"configs.{name}.maddpg.n_step must be at least 1, got {algo.maddpg.n_step}")
+            for method in algo.per_method or {}:  # every key must exist, type-check and lie in its range
+                check_algo(method_config(self, name, method), f"configs.{name}.per_method.{method}")
+        for key in ("table_spacing", "raster_spacing"):  # a cell wider than the coverage polygon resolves nothing
+            within(getattr(c, key), f"coverage.{key}", 0, c.radius / 2, open_lo=True)
+        within(self.evaluate.episodes, "evaluate.episodes", 1)
         for name, spec in self.regions.items():
             if spec.episode_length is not None and spec.episode_length < 1:
                 raise ConfigError(f"regions.{name}.episode_length must be at least 1, got {spec.episode_length}")
@@ -552,7 +602,13 @@ def load_params(path: str | Path = DEFAULT_PARAMS, overrides: Mapping[str, Any] 
         node, key = dotted_parent(raw, dotted, f"override {dotted!r}")
         node[key] = value
     stages = {k: raw.pop(k) for k in STAGE_SECTIONS if k in raw}
-    params = from_mapping(Params, raw, str(path))
+    try:
+        params = from_mapping(Params, raw, str(path))
+    except ConfigError as exc:
+        culprit = next((f"--set {k}={v}" for k, v in (overrides or {}).items() if k in str(exc)), None)
+        if culprit is None:
+            raise
+        raise ConfigError(f"{culprit}: {str(exc).replace(str(path) + '.', '')}") from None
     return dataclasses.replace(params, stages=stages)
 
 

@@ -102,19 +102,31 @@ def read_curve(path: str | Path) -> dict[str, np.ndarray]:
     return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
 
 
+def run_actors(run_dir: Path, params: Params, actors: str = "actors.pt"):
+    """A run's actors, metadata and run config under ``params``, refused by name when the params give the world
+    another observation or another number of buoys than the actors were trained for."""
+    net, meta = load_actors(Path(run_dir) / actors)
+    ident = meta["identity"]
+    rc = run_config(params, ident["config"], ident["method"], ident["region"])
+    if meta["observation"] != rc.algo.observation:
+        raise ConfigError(f"{run_dir}: actors observe {meta['observation']!r}, params say {rc.algo.observation!r}")
+    n_actors = net.weights[0].shape[0]
+    if n_actors != rc.world.n_agents:
+        raise ConfigError(f"{run_dir}: the run has {n_actors} actors (one per buoy), the world {rc.world.n_agents} "
+                          f"buoys; use it with world.n_agents={n_actors}")
+    return net, meta, rc
+
+
 def evaluate_run(run_dir: str | Path, params: Params, region: Region, actors: str = "actors.pt",
                  as_config: str | None = None, progress: bool = False) -> dict:
     """Metrics of a finished run: deterministic evaluation plus convergence from its training curve.
     ``actors``/``as_config`` evaluate another actors file of the run and file it under another config name
     (the last actors of a selecting run are its "without selection" ablation)."""
     run_dir = Path(run_dir)
-    net, meta = load_actors(run_dir / actors)
+    net, meta, rc = run_actors(run_dir, params, actors)
     ident = meta["identity"]
-    rc = run_config(params, ident["config"], ident["method"], ident["region"])
     ev = params.evaluate
     env = eval_env(region, rc, ev.episodes, rc.algo.observation)
-    if meta["observation"] != rc.algo.observation:
-        raise ConfigError(f"{run_dir}: actors observe {meta['observation']!r}, params say {rc.algo.observation!r}")
     policy = actor_policy(net, meta["observation"])
     with steps_bar(params, rc, progress, f"evaluating {Path(run_dir).name}") as bar:
         pos = rollout(env, policy, rc.world.episode_length, ev.seed, bar=bar)["positions"]

@@ -37,9 +37,10 @@ class CoverageParallelEnv(ParallelEnv):
     configuration's reward options and world bounds from params.yaml: its observation, geofence, reward scale,
     union credit and union weight (``config="tuned"`` is the CR reward that learns, see ``docs/TUNING.md``); the
     keyword arguments override them one by one. ``n_agents``, ``radius``, ``episode_length`` override the world;
-    ``reward`` is ``"sw"``, ``"cr"`` or ``None``. Infos carry the coverage fraction (fast path) from the reset on,
-    so wrappers that build their specs from ``reset()`` see it. Observations and the ``state()`` are bounded: no
-    buoy can get further than T steps at top speed from the region (or past the geofence).
+    ``reward`` is ``"sw"``, ``"cr"`` or ``None``; ``shore="wall"`` keeps every buoy in the water. Infos carry the
+    coverage fraction (fast path) from the reset on, so wrappers that build their specs from ``reset()`` see it.
+    Observations and the ``state()`` are bounded: no buoy can get further than T steps at top speed from the
+    region (or past the geofence).
     """
 
     metadata = {"name": "buoy_coverage_v1", "render_modes": [], "is_parallelizable": True}
@@ -58,6 +59,7 @@ class CoverageParallelEnv(ParallelEnv):
         union_credit: str | None = None,
         union_weight: float | None | Unset = UNSET,
         episode_length: int | None = None,
+        shore: str | None = None,
         params: Params | None = None,
     ):
         params = params or load_params(packaged("params.yaml"))
@@ -83,7 +85,7 @@ class CoverageParallelEnv(ParallelEnv):
         self.core = CoverageEnv(
             region, world, coverage, n_envs=1, reward=reward, sw=params.sw_reward, cr=cr,
             observation=pick(observation, "observation", "position"), geofence=fence,
-            union_credit=pick(union_credit, "union_credit", "shared"),
+            wall=pick(shore, "shore", "fence") == "wall", union_credit=pick(union_credit, "union_credit", "shared"),
         )
         self.possible_agents = [f"buoy_{i}" for i in range(world.n_agents)]
         self.agents: list[str] = []
@@ -146,12 +148,13 @@ class CoverageParallelEnv(ParallelEnv):
 def reachable_bounds(core: CoverageEnv) -> tuple[np.ndarray, np.ndarray]:
     """Per-buoy bounds of [x, y, vx, vy]: a velocity component never exceeds the terminal speed of the MPE
     update, v_max = sensitivity·dt / (mass·damping), so a buoy released in the region is at most T·v_max·dt
-    outside its box (or at the geofence)."""
+    outside its box (or at the geofence; never outside the water behind a wall)."""
     w = core.world
     v_max = w.sensitivity * w.dt / (w.mass * w.damping)
     minx, miny, maxx, maxy = core.region.polygon.bounds
-    reach = w.episode_length * v_max * w.dt if core.fence is None else 0.0
-    lo, hi = (core.fence if core.fence is not None else (np.array([minx, miny]), np.array([maxx, maxy])))
+    reach = w.episode_length * v_max * w.dt if core.fence is None and not core.wall else 0.0
+    box = (np.array([minx, miny]), np.array([maxx, maxy]))
+    lo, hi = core.fence if core.fence is not None and not core.wall else box
     return (np.concatenate([lo - reach, [-v_max, -v_max]]) - 1e-6,
             np.concatenate([hi + reach, [v_max, v_max]]) + 1e-6)
 

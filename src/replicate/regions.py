@@ -86,7 +86,8 @@ def check_polygon(geom, what: str = "region") -> Polygon:
     if not isinstance(geom, Polygon):
         raise RegionError(f"{what}: expected a Polygon, got a {geom.geom_type}")
     if not geom.is_valid:
-        raise RegionError(f"{what}: invalid polygon ({explain_validity(geom)})")
+        raise RegionError(f"{what}: invalid polygon ({explain_validity(geom)}); repair the outline (for example "
+                          "shapely.make_valid, or Fix geometries in QGIS)")
     if not np.isfinite(np.asarray(geom.exterior.coords)).all():
         raise RegionError(f"{what}: coordinates are not finite")
     if geom.area <= 0:
@@ -115,6 +116,18 @@ def box_region(name: str, width: float, height: float) -> Region:
     return Region(name, box(-width / 2, -height / 2, width / 2, height / 2))
 
 
+def declared_crs(path: Path) -> str | None:
+    """The CRS name a GeoJSON file's ``crs`` member declares, if any (the readers fall back to WGS 84 on a name
+    they do not know)."""
+    if path.suffix.lower() not in (".geojson", ".json"):
+        return None
+    try:
+        crs = json.loads(path.read_text()).get("crs") or {}
+        return str(crs.get("properties", {}).get("name")) if crs else None
+    except (ValueError, UnicodeDecodeError, AttributeError):
+        return None
+
+
 def read_outline(path: str | Path, layer: str | None = None):
     """Read a vector file with geopandas and return (polygon, crs, properties of its feature)."""
     import geopandas as gpd
@@ -123,7 +136,9 @@ def read_outline(path: str | Path, layer: str | None = None):
     if not path.exists():
         raise RegionError(f"{path}: no such file")
     try:
-        gdf = gpd.read_file(path, layer=layer) if layer else gpd.read_file(path)
+        with warnings.catch_warnings():  # a NaN vertex warns inside the reader; it is refused below, by name
+            warnings.simplefilter("ignore", RuntimeWarning)
+            gdf = gpd.read_file(path, layer=layer) if layer else gpd.read_file(path)
     except Exception as exc:  # noqa: BLE001 - any reader failure is a bad input
         raise RegionError(f"{path}: cannot be read as a vector file ({exc})") from exc
     if gdf.empty:
@@ -135,14 +150,20 @@ def read_outline(path: str | Path, layer: str | None = None):
     if polys.empty:
         kinds = sorted(set(gdf.geom_type))
         raise RegionError(f"{path}: no polygon features (found {kinds or 'only empty geometries'})")
+    if not np.isfinite(shapely.get_coordinates(polys.geometry.values)).all():
+        raise RegionError(f"{path}: the outline has coordinates that are not numbers (NaN or infinite); fix or "
+                          "remove those vertices")
     if len(polys) > 1:
         warnings.warn(f"{path}: {len(polys)} polygon features; using the largest", stacklevel=2)
     if polys.crs.is_geographic:
         minx, miny, maxx, maxy = polys.total_bounds
         if not (-180 <= minx <= maxx <= 360 and -90 <= miny <= maxy <= 90):
+            declared = declared_crs(path)
+            why = (f"the file declares the CRS {declared!r}, which the reader does not know and read as WGS 84"
+                   if declared else "GeoJSON without a CRS means WGS 84")
             raise RegionError(f"{path}: the coordinates ({minx:.6g} … {maxx:.6g}, {miny:.6g} … {maxy:.6g}) are not "
-                              f"longitudes and latitudes, but the file's CRS is {polys.crs.to_string()} (GeoJSON "
-                              "without a CRS means WGS 84); write the file with the CRS its coordinates are in")
+                              f"longitudes and latitudes, but the file's CRS is {polys.crs.to_string()} ({why}); "
+                              "write the file with the CRS its coordinates are in")
     utm = estimate_utm(polys, path)
     areas = polys.to_crs(utm).area
     row = polys.loc[areas.idxmax()]
@@ -246,3 +267,32 @@ def signed_distance(polygon: Polygon, xy: np.ndarray) -> np.ndarray:
         dist = np.minimum(dist, shapely.distance(interior, shapely.points(flat)))
     inside = shapely.contains_xy(polygon, flat[:, 0], flat[:, 1])
     return np.where(inside, -dist, dist).reshape(xy.shape[:-1])
+
+
+RUN_REGION = "region.json"  # a run's region, written beside its actors: evaluate, export and resume read it
+
+
+def write_run_region(run: Path, region: Region) -> None:
+    """The region a run trains on, into the run folder: its polygon in simulation metres (WKB, exact: WKT rounds)
+    and the map transform, so a run trained on a file is evaluated, exported and resumed without the file."""
+    from . import artifacts
+
+    artifacts.write_json(Path(run) / RUN_REGION, {
+        "name": region.name, "wkb_hex": shapely.to_wkb(region.polygon, hex=True), "scale": region.scale,
+        "utm_crs": region.utm_crs, "offset": list(region.offset), "source": region.source})
+
+
+def read_run_region(run: Path) -> Region | None:
+    """The region a run folder records (``write_run_region``, or a bare ``region.wkt``), else None."""
+    run = Path(run)
+    try:
+        if (run / RUN_REGION).exists():
+            d = json.loads((run / RUN_REGION).read_text())
+            return Region(d["name"], shapely.from_wkb(d["wkb_hex"]), float(d["scale"]), d["utm_crs"],
+                          tuple(d["offset"]), d.get("source", "synthetic"))
+        if (run / "region.wkt").exists():
+            return Region(run.name, shapely.from_wkt((run / "region.wkt").read_text()))
+    except (ValueError, KeyError, TypeError, shapely.errors.GEOSException) as exc:
+        raise RegionError(f"{run}: the run's region record is damaged ({exc}); pass --region") from None
+    return None
+

@@ -24,7 +24,7 @@ from .config import Params, run_config
 from .env import start_patch
 from .evaluate import evaluate_baseline, evaluate_run
 from .osm import OSMUnavailable, outline_from_osm_xml, query_osm
-from .regions import Region, RegionError, check_polygon, region_from_file
+from .regions import Region, RegionError, check_polygon, region_from_file, write_run_region
 from .train import train
 
 
@@ -80,6 +80,7 @@ def cover(
     n_envs = rc.algo.n_envs
     episodes = max(n_envs, episodes - episodes % n_envs)
     train(rc, region, episodes, seed, out / "run", params.train.checkpoint_every, resume=False, progress=progress)
+    write_run_region(out / "run", region)  # evaluate and export read the run's region from the folder
     method = evaluate_run(out / "run", params, region, progress=progress)
     lloyd = evaluate_baseline("lloyd_converged", params, region, config, progress=progress)
     c = params.coverage
