@@ -62,8 +62,12 @@ def test_exported_policy_equals_training_actor(small_run, regions, tmp_path):
 
 
 def test_act_command_with_real_coordinates(small_run, regions, tmp_path):
-    bedok_like = dataclasses.replace(regions["square"], scale=300.0, offset=(380000.0, 148000.0))
+    bedok_like = dataclasses.replace(regions["square"], scale=300.0, offset=(380000.0, 148000.0),
+                                     utm_crs="EPSG:32648")
     export_policy(small_run / "actors.pt", bedok_like, tmp_path / "policy.pt")
+    export_policy(small_run / "actors.pt", regions["square"], tmp_path / "synthetic.pt")
+    with pytest.raises(ValueError, match="synthetic, with no map coordinates"):  # --real would change nothing
+        act(tmp_path / "synthetic.pt", np.zeros((9, 4)), real=True)
     sim = np.random.default_rng(0).uniform(-1, 1, (9, 4))
     real = sim.copy()
     real[:, :2] = np.array([380000.0, 148000.0]) + 300.0 * sim[:, :2]

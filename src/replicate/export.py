@@ -106,6 +106,9 @@ def act(path: str | Path, observations: np.ndarray, real: bool = False) -> np.nd
         raise ValueError(f"expected observations of shape ({meta['n_agents']}, {dim}) "
                          f"[{', '.join(meta['observation_layout'])}], got {obs.shape}")
     if real:
+        if meta.get("utm_crs") is None:
+            raise ValueError(f"{path}: the policy's region ({meta.get('region')}) is synthetic, with no map "
+                             "coordinates; give its observations in simulation units (without --real)")
         obs = obs.copy()
         obs[:, :2] = (obs[:, :2] - np.asarray(meta["offset"])) / meta["scale_m_per_sim_m"]
         obs[:, 2:] = obs[:, 2:] / meta["scale_m_per_sim_m"]
