@@ -7,7 +7,7 @@ job computes the same bytes in a fresh local process as in a Ray worker; ``tests
 training matrix through a local Ray runtime gives the local executor's curves and actors.
 
 With ``ray``, ``ray.init()`` joins the cluster named by ``RAY_ADDRESS`` or starts a local runtime; every node
-needs this package installed (``pip install .``), since the jobs are its functions.
+needs this package installed (``pip install '.[ray]'``), since the jobs are its functions.
 """
 
 from __future__ import annotations
