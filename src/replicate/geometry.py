@@ -32,6 +32,7 @@ import numpy as np
 import shapely
 from numba import njit
 from shapely.geometry import Polygon
+from tqdm.auto import tqdm
 
 
 def polygon_offsets(radius: float, edges: int) -> np.ndarray:
@@ -357,8 +358,13 @@ def _build_area_table(region_wkb, radius, edges, h, eroded_wkb, dilated_wkb):
     deep_inside = shapely.contains_xy(shrunk, x, y)
     table[deep_inside] = Polygon(offsets).area
     pts = np.stack([x[near], y[near]], axis=1)
-    cov = shapely.polygons(pts[:, None, :] + offsets)
-    table[near] = shapely.area(shapely.intersection(cov, region))
+    areas = np.empty(len(pts))
+    chunk = 20_000  # the first run on a long shore builds for a minute or more: a bar on a terminal
+    for start in tqdm(range(0, len(pts), chunk), desc="coverage area table (cached for later runs)", unit="chunk",
+                      disable=None if len(pts) > 5 * chunk else True, leave=False):
+        cov = shapely.polygons(pts[start:start + chunk, None, :] + offsets)
+        areas[start:start + chunk] = shapely.area(shapely.intersection(cov, region))
+    table[near] = areas
     return origin, h, table.reshape(nx, ny)
 
 
