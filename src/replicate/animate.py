@@ -20,7 +20,7 @@ def animate_run(run_dir: str | Path, params: Params, region: Region, out: str | 
     from matplotlib.animation import FuncAnimation, PillowWriter
     from matplotlib.patches import Polygon as MplPolygon
 
-    net, meta, rc = run_actors(Path(run_dir), params)
+    net, meta, rc = run_actors(Path(run_dir), params, same_observation=False)
     ident = meta["identity"]
     env = eval_env(region, rc, 1, meta["observation"])  # what the actors were trained to observe
     trace = rollout(env, actor_policy(net, meta["observation"]), rc.world.episode_length,

@@ -102,13 +102,13 @@ def read_curve(path: str | Path) -> dict[str, np.ndarray]:
     return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
 
 
-def run_actors(run_dir: Path, params: Params, actors: str = "actors.pt"):
+def run_actors(run_dir: Path, params: Params, actors: str = "actors.pt", same_observation: bool = True):
     """A run's actors, metadata and run config under ``params``, refused by name when the params give the world
-    another observation or another number of buoys than the actors were trained for."""
+    another number of buoys than the actors were trained for, or (``same_observation``) another observation."""
     net, meta = load_actors(Path(run_dir) / actors)
     ident = meta["identity"]
     rc = run_config(params, ident["config"], ident["method"], ident["region"])
-    if meta["observation"] != rc.algo.observation:
+    if same_observation and meta["observation"] != rc.algo.observation:
         raise ConfigError(f"{run_dir}: actors observe {meta['observation']!r}, params say {rc.algo.observation!r}")
     n_actors = net.weights[0].shape[0]
     if n_actors != rc.world.n_agents:
