@@ -25,11 +25,13 @@ from replicate.train import (
     CURVE,
     TRAINING_VERSION,
     Trainer,
+    core_seconds,
     finished_run,
     load_actors,
     lr_factor,
     make_env,
     run_identity,
+    timed_by,
     train,
 )
 
@@ -113,6 +115,10 @@ def test_run_writes_curve_and_actors_and_drops_its_checkpoint(params, regions, t
         assert (tmp_path / "whole" / name).exists()
     assert not (tmp_path / "whole" / "checkpoint.pt").exists()
     assert summary["status"] == "finished" and summary["transitions"] == 20 * 50
+    # one core's time is the process's CPU time: at most its wall time on one thread, and what the report judges
+    assert 0 < summary["cpu_seconds"] <= summary["wall_seconds"] * 1.05
+    assert core_seconds(summary) == summary["cpu_seconds"] and timed_by(summary) == "cpu"
+    assert timed_by({"wall_seconds": 1.0}) == "wall" and core_seconds({"wall_seconds": 6.0, "runs_in_process": 3}) == 2
     curve = evaluate.read_curve(tmp_path / "whole" / CURVE)
     assert list(curve["episode"]) == list(range(20))
     assert not list(tmp_path.glob("*/.*.tmp")), "no temporary file is left behind"

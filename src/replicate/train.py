@@ -68,9 +68,16 @@ def run_identity(rc: RunConfig, region: Region, episodes: int, seed: int) -> dic
 
 
 def core_seconds(summary: dict) -> float:
-    """One core's time for a run: its process's wall time shared among the runs trained in it (runs trained one per
-    process do not record ``runs_in_process``)."""
-    return summary["wall_seconds"] / summary.get("runs_in_process", 1)
+    """One core's time for a run: its process's CPU time (``cpu_seconds``; one thread, so other work on the machine
+    does not inflate it) shared among the runs trained in it, or for a run that recorded only its wall time, that
+    (runs trained one per process do not record ``runs_in_process``)."""
+    return summary.get("cpu_seconds", summary["wall_seconds"]) / summary.get("runs_in_process", 1)
+
+
+def timed_by(summary: dict) -> str:
+    """``cpu`` when ``core_seconds`` is the run's CPU time, ``wall`` when only its wall time was recorded (then
+    a second process on the core inflates it)."""
+    return "cpu" if "cpu_seconds" in summary else "wall"
 
 
 def finished_run(out: str | Path, identity: dict) -> dict | None:
@@ -178,6 +185,7 @@ class Trainer:
         self.transitions = 0  # per run
         self.pending_updates = 0.0
         self.wall = 0.0  # of the whole stack
+        self.cpu = 0.0  # of the whole stack: this process's CPU time, which other processes do not inflate
         self.update_seconds = 0.0  # time spent in MADDPG updates (the rest is environment, geometry, acting)
         self.updates = 0
 
@@ -203,7 +211,7 @@ class Trainer:
             artifacts.write_json(out / "run.json", {**self.identity(k), "status": "running"})
         bar = tqdm(total=self.episodes * runs, initial=len(self.rows[0]) * runs, disable=not self.progress,
                    unit="ep", smoothing=0.05)
-        t0 = time.perf_counter() - self.wall
+        t0, c0 = time.perf_counter() - self.wall, time.process_time() - self.cpu
         for batch in range(len(self.rows[0]) // n_env, self.episodes // n_env):
             progress = batch * n_env / self.episodes
             sigma = noise_sigma(cfg, progress)
@@ -216,10 +224,10 @@ class Trainer:
             if algo.select_every and done % algo.select_every < n_env:
                 self.validate(done)
             if done % self.checkpoint_every < n_env and done < self.episodes:
-                self.wall = time.perf_counter() - t0
+                self.wall, self.cpu = time.perf_counter() - t0, time.process_time() - c0
                 self.save_checkpoint()
         bar.close()
-        self.wall = time.perf_counter() - t0
+        self.wall, self.cpu = time.perf_counter() - t0, time.process_time() - c0
         self.save_curves()
         self.save_actors()
         return self.finish()
@@ -285,7 +293,8 @@ class Trainer:
                 **self.identity(k),
                 "status": "finished",
                 "wall_seconds": round(self.wall, 2),  # of the stack: every run of it took this long
-                "runs_in_process": len(self.seeds),  # so one core's time per run is wall_seconds / runs_in_process
+                "cpu_seconds": round(self.cpu, 2),  # of the stack's process
+                "runs_in_process": len(self.seeds),  # so one core's time per run is cpu_seconds / runs_in_process
                 "update_seconds": round(self.update_seconds, 2),
                 "updates": self.updates,
                 "transitions": self.transitions,
@@ -342,6 +351,7 @@ class Trainer:
                 "transitions": self.transitions,
                 "pending_updates": self.pending_updates,
                 "wall": self.wall,
+                "cpu": self.cpu,
                 "updates": self.updates,
                 "update_seconds": self.update_seconds,
                 "validation": self.validation[k],
@@ -376,6 +386,8 @@ class Trainer:
                 self.transitions, self.pending_updates = int(state["transitions"]), float(state["pending_updates"])
                 self.updates = int(state["updates"])
                 self.wall, self.update_seconds = float(state["wall"]), float(state["update_seconds"])
+                # a checkpoint written before CPU time was recorded counts its wall time, as its run did
+                self.cpu = float(state.get("cpu", state["wall"]))
             except (KeyError, RuntimeError, ValueError, TypeError) as exc:
                 raise CheckpointError(f"{path}: checkpoint is incomplete or mismatched ({exc})") from exc
 
