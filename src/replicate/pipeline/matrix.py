@@ -17,7 +17,7 @@ from .. import artifacts
 from ..config import ablated_name, load_params, run_config, selection_only
 from ..executor import map_jobs
 from ..regions import make_region
-from ..train import core_seconds, finished_run, timed_by, run_identity, train_runs, training_process
+from ..train import core_seconds, finished_run, run_identity, timed_by, train_runs, training_process
 
 
 def run_name(config: str, method: str, region: str, seed: int) -> str:
@@ -103,7 +103,8 @@ def train_matrix(params_path: str, configs, methods, regions, episodes: int, run
     wall = time.perf_counter() - t0
     keys = ("config", "method", "region", "seed", "wall_seconds", "final_coverage_last100")
     table = [{**{k: s[k] for k in keys}, "runs_in_process": s.get("runs_in_process", 1),
-              "core_seconds": round(core_seconds(s), 2), "timed_by": timed_by(s), "skipped": s.get("skipped", False)} for s in summaries]
+              "core_seconds": round(core_seconds(s), 2), "timed_by": timed_by(s), "skipped": s.get("skipped", False)}
+             for s in summaries]
     artifacts.write_json(Path(runs_dir) / "summary.json", {"wall_seconds": round(wall, 1), "runs": table})
     return wall, table
 

@@ -290,14 +290,20 @@ def robustness_rows(summary: dict, regions: list[str], scenarios: list[str]) -> 
     return rows
 
 
+def ablation_effect(delta: dict) -> str:
+    """The reading of an ablation row's Δ (with − without): an interval that contains 0 (or none) has no
+    measurable effect; above 0 the change helps, below it hurts."""
+    lo, hi = delta["lo"], delta["hi"]
+    return "no measurable effect" if lo != lo or lo <= 0 <= hi else "helps" if lo > 0 else "hurts"
+
+
 def ablation_rows(summary: dict) -> list[str]:
     lines = []
     for key, r in summary.get("ablation", {}).items():
         change, region = key.split("/")
         keys = ", ".join(f"`{k}`" for k in r["keys"])
         d = r["delta"]
-        effect = "no measurable effect" if d["lo"] != d["lo"] or d["lo"] <= 0 <= d["hi"] else \
-            "helps" if d["lo"] > 0 else "hurts"
+        effect = ablation_effect(d)
         lines.append(f"| `{change}` | {keys} | {region} | {fmt(r['with'])} | {fmt(r['without'])} | "
                      f"{fmt_delta(d)} | {effect} | {r['with_per_seed']} | {r['without_per_seed']} |")
     return lines
@@ -449,7 +455,7 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
                       "inflates")
         lines.append(f"Training: {len(runs)} runs, {sum(cores):.0f} s of one core's time in all ({span(cores)} s "
                      "per run; a cell's seeds train together in one process, and a run counts its share of that "
-                     f"process's wall time); {stage}.")
+                     f"process's CPU time, or of its wall time where it recorded only that); {stage}.")
     for stage, seconds in stage_times.items():
         lines.append(f"- `{stage}`: {seconds:.0f} s")
     lines += ["", "## Figures", ""]
