@@ -3,6 +3,7 @@
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-from-lock
+BENCH_STAMP := $(VENV)/.installed-bench-extra
 export DVC_NO_ANALYTICS := 1
 export PYTHONHASHSEED := 0
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)   # papermill and dvc of the venv, for the pipeline's stages
@@ -30,7 +31,12 @@ test-fast: $(STAMP)
 repro: $(STAMP)
 	$(VENV)/bin/dvc repro
 
-bench: $(STAMP)
+# BenchMARL, torchrl and VMAS for the side-by-side figures: an extra that only the benchmarks install.
+$(BENCH_STAMP): $(STAMP) benchmarks/bench.lock
+	$(PY) -m pip install --quiet --disable-pip-version-check -c environment.lock -r benchmarks/bench.lock
+	touch $(BENCH_STAMP)
+
+bench: $(BENCH_STAMP)
 	$(PY) benchmarks/bench.py
 
 # Regenerate the reduced-episode regression references on purpose (after a change meant to alter curves).

@@ -13,11 +13,16 @@
 2. One update of all 9 agents, per configuration: the batched MADDPG (hand-written gradients) against the same
    batched update through autograd (the update before its gradients were written out) and the per-agent loop
    (``maddpg_loop``), as ratios.
-3. Environment throughput (agent-steps per second, random actions) against PettingZoo MPE2 ``simple_spread_v3``
-   with N = 9 and continuous actions, as a ratio.
+3. Environment throughput (agent-steps per second, random actions) at E = 1, 50 and 1,024 environments, with the
+   CR reward on the square and with the shore wall on Bedok, against PettingZoo MPE2 ``simple_spread_v3`` (N = 9,
+   continuous actions, one environment) and VMAS ``simple_spread`` (9 agents, the same E), as ratios.
 4. The allocator setting of the training processes (``train.hold_freed_memory``): ``paper``'s CR-MARL stack of
    seeds trained in fresh processes with glibc's default allocator against the held one, one process alone and
    two side by side (as the pipeline runs them); time per update, page faults, and the ratios.
+5. BenchMARL 1.5.2 MADDPG on VMAS ``simple_spread`` against the project's MADDPG, both on the ``paper`` schedule:
+   seconds per 1,000 episodes end to end and one update at identical matrix shapes, as ratios
+   (``benchmarks/benchmarl_side_by_side.py``; sections 3's VMAS and 5 need the ``bench`` extra, which
+   ``make bench`` installs).
 
 Everything runs on one thread (``torch.set_num_threads(1)``), the budget of one core of the 2-core machine, and
 sections 0-3 with the allocator setting of the pipeline's training processes.
@@ -32,6 +37,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import benchmarl_side_by_side as benchmarl_bench  # beside this file
 import numpy as np
 import torch
 
@@ -229,11 +235,15 @@ def update_times(params, config: str, rounds: int = 5) -> dict[str, float]:
     return {k: float(np.median(v)) for k, v in times.items()}
 
 
-def env_throughput(params, square, n_envs: int, seconds=3.0):
-    env = CoverageEnv(square, params.world, params.coverage, n_envs=n_envs, reward="cr", cr=params.cr_reward, seed=0)
+def env_throughput(params, region, n_envs: int, seconds=3.0, wall: bool = False):
+    """Agent-steps per second of the coverage environment with the CR reward, random actions (``wall``: the shore
+    is a wall, ``world.shore: wall``)."""
+    env = CoverageEnv(region, params.world, params.coverage, n_envs=n_envs, reward="cr", cr=params.cr_reward, seed=0,
+                      wall=wall)
     rng = np.random.default_rng(0)
     steps = 0
     env.reset()
+    env.step(rng.uniform(-1, 1, (n_envs, 9, 2)))  # compiles the numba kernels outside the timing
     t = time.perf_counter()
     while time.perf_counter() - t < seconds:
         env.step(rng.uniform(-1, 1, (n_envs, 9, 2)))
@@ -259,6 +269,26 @@ def mpe2_throughput(seconds=3.0):
         if any(trunc.values()) or any(term.values()) or not env.agents:
             env.reset()
     return steps * 9 / (time.perf_counter() - t)
+
+
+def vmas_throughput(n_envs: int, seconds=3.0) -> float:
+    """Agent-steps per second of VMAS ``simple_spread`` (9 agents, continuous actions, CPU, one thread), random
+    actions; needs the ``bench`` extra."""
+    import vmas
+
+    env = vmas.make_env("simple_spread", num_envs=n_envs, device="cpu", continuous_actions=True, seed=0,
+                        n_agents=9, max_steps=50)
+    env.reset()
+    gen = torch.Generator().manual_seed(0)
+    env.step([torch.rand(n_envs, 2, generator=gen) * 2 - 1 for _ in range(9)])
+    steps = 1
+    t = time.perf_counter()
+    while time.perf_counter() - t < seconds:
+        env.step([torch.rand(n_envs, 2, generator=gen) * 2 - 1 for _ in range(9)])
+        steps += 1
+        if steps % 50 == 0:
+            env.reset()
+    return steps * n_envs * 9 / (time.perf_counter() - t)
 
 
 def allocator_probe(allocator: str, episodes: int) -> None:
@@ -354,10 +384,16 @@ def main(argv=None) -> int:
 
     print("== 3. environment throughput, random actions, agent-steps per second ==")
     ref = mpe2_throughput()
-    for n_envs in (1, params.configs["paper"].n_envs):
+    bedok = make_region("bedok", params.regions["bedok"], params.world.region_area)
+    for n_envs in (1, params.configs["paper"].n_envs, 1024):
         ours = env_throughput(params, square, n_envs)
-        print(f"coverage env (CR reward, E={n_envs:3d}): {ours:10.0f}; MPE2 simple_spread_v3 (N=9, continuous): "
-              f"{ref:10.0f}; ratio {ours / ref:.2f}")
+        walled = env_throughput(params, bedok, n_envs, wall=True)
+        line = (f"E={n_envs:4d}: coverage env (CR reward) {ours:9.0f}, on Bedok with the shore wall {walled:9.0f}; "
+                f"MPE2 simple_spread_v3 (N=9, continuous, one env) {ref:8.0f}, ratio {ours / ref:.1f}")
+        if benchmarl_bench.available():
+            v = vmas_throughput(n_envs)
+            line += f"; VMAS simple_spread {v:9.0f}, ratio {ours / v:.2f} (walled {walled / v:.2f})"
+        print(line)
 
     print("== 4. allocator of the training processes: paper CR-MARL, 3 seeds stacked, fresh processes ==")
     probes = allocator_comparison(args.episodes)
@@ -368,6 +404,20 @@ def main(argv=None) -> int:
               f"faults, {default['system_seconds']:.1f} s in the kernel); held (train.hold_freed_memory) "
               f"{held['per_update'] * 1e3:.1f} ms ({held['faults']:,} faults, {held['system_seconds']:.1f} s); "
               f"ratio {held['per_update'] / default['per_update']:.2f}")
+
+    print("== 5. BenchMARL 1.5.2 MADDPG on VMAS simple_spread beside the project, paper schedule, fresh processes "
+          "alternating, median of 3 ==")
+    if benchmarl_bench.available():
+        sides = benchmarl_bench.side_by_side()
+        ours, theirs = sides["project"], sides["benchmarl"]
+        print(f"end to end, s per 1,000 episodes: project {ours['per_1000_episodes']:.1f}, BenchMARL "
+              f"{theirs['per_1000_episodes']:.1f}, ratio {theirs['per_1000_episodes'] / ours['per_1000_episodes']:.2f}"
+              f" (per update inside the runs: {ours['per_update'] * 1e3:.1f} vs {theirs['per_update'] * 1e3:.1f} ms)")
+        print(f"one update at identical shapes (9 agents, observation width {benchmarl_bench.OBS_WIDTH}, batch "
+              f"{benchmarl_bench.BATCH}): project {ours['update_alone'] * 1e3:.1f} ms, BenchMARL "
+              f"{theirs['update_alone'] * 1e3:.1f} ms, ratio {theirs['update_alone'] / ours['update_alone']:.2f}")
+    else:
+        print("BenchMARL is not installed (pip install .[bench]; make bench installs it)")
 
     if args.full:
         print("== full run: paper CR-MARL, square, 10,000 episodes ==")
