@@ -1,0 +1,129 @@
+"""What a buoy senses around itself, with no absolute position: its own velocity, the buoys it hears, and how far
+the shore is. A policy fed only these is the same function in every lake and for every fleet size.
+
+Each sensor is one function over arrays batched ``[E, N, ...]`` (E environments, N buoys); ``local_observation``
+concatenates them in the order of ``columns``, which the exported policy's metadata lists. Directions are the
+world's (a compass), not the buoy's: a buoy has no heading.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+from shapely.geometry.polygon import orient
+
+
+def own_velocity(vel: np.ndarray) -> np.ndarray:
+    """The buoy's velocity in the world frame, [E, N, 2] → [E, N, 2] (a GPS or log reads it on board)."""
+    return vel
+
+
+def neighbours(pos: np.ndarray, k: int, comm_range: float, alive: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` nearest other buoys within ``comm_range`` of each buoy, nearest first: their positions relative
+    to it, [E, N, k, 2], and a mask, [E, N, k] (1 for a buoy heard, 0 for an empty slot, whose position is 0).
+    Lost buoys (``alive`` [E, N] False) are not heard. pos: [E, N, 2]."""
+    e, n = pos.shape[:2]
+    rel = pos[:, None, :, :] - pos[:, :, None, :]  # [E, N (self), N (other), 2]: other − self
+    dist = np.linalg.norm(rel, axis=-1)
+    heard = dist <= comm_range
+    heard[:, np.arange(n), np.arange(n)] = False
+    if alive is not None:
+        heard &= alive[:, None, :]
+    dist = np.where(heard, dist, np.inf)
+    slots = min(k, n - 1)
+    order = np.argsort(dist, axis=-1, kind="stable")[..., :slots]  # [E, N, slots]
+    near = np.take_along_axis(rel, order[..., None], axis=2)
+    mask = np.take_along_axis(heard, order, axis=2)
+    out_rel, out_mask = np.zeros((e, n, k, 2)), np.zeros((e, n, k))
+    out_rel[:, :, :slots] = np.where(mask[..., None], near, 0.0)
+    out_mask[:, :, :slots] = mask
+    return out_rel, out_mask
+
+
+def ray_directions(rays: int) -> np.ndarray:
+    """Unit vectors of ``rays`` compass directions, east first, counter-clockwise. → [rays, 2]."""
+    angle = 2 * np.pi * np.arange(rays) / rays
+    unit = np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    return np.where(np.abs(unit) < 1e-12, 0.0, unit)  # due south is (0, −1), not (−1.8e-16, −1)
+
+
+def shore_segments(water: Polygon) -> np.ndarray:
+    """Every edge of the shoreline (outer ring and islands), oriented so that the water lies to its left.
+    → [S, 4] rows (ax, ay, bx, by)."""
+    oriented = orient(water, sign=1.0)  # exterior counter-clockwise, holes clockwise
+    rows = []
+    for ring in (oriented.exterior, *oriented.interiors):
+        xy = np.asarray(ring.coords)
+        rows.append(np.concatenate([xy[:-1], xy[1:]], axis=1))
+    return np.concatenate(rows)
+
+
+VERTEX = 1e-12  # of an edge's length: a ray through a corner meets both edges there despite rounding
+GRAZING = 1e-9  # sine of the angle below which a ray runs along an edge (a buoy on the shore looking along it)
+
+
+@numba.njit(cache=True)
+def _ray_distances(origins, directions, segments, max_range, out):  # pragma: no cover - compiled
+    for m in range(origins.shape[0]):
+        px, py = origins[m, 0], origins[m, 1]
+        for r in range(directions.shape[0]):
+            dx, dy = directions[r, 0], directions[r, 1]
+            best = max_range
+            for s in range(segments.shape[0]):
+                ax, ay, bx, by = segments[s, 0], segments[s, 1], segments[s, 2], segments[s, 3]
+                if min(ax, bx) > px + best or max(ax, bx) < px - best or \
+                        min(ay, by) > py + best or max(ay, by) < py - best:
+                    continue
+                ex, ey = bx - ax, by - ay
+                denom = dx * ey - dy * ex  # |e| sin(angle): > 0 when the ray crosses this edge from the water out
+                if denom <= GRAZING * np.sqrt(ex * ex + ey * ey):  # into the water, or along the edge
+                    continue
+                qx, qy = ax - px, ay - py
+                t = (qx * ey - qy * ex) / denom
+                u = (qx * dy - qy * dx) / denom
+                if 0.0 <= t < best and -VERTEX <= u <= 1.0 + VERTEX:
+                    best = t
+            out[m, r] = best
+
+
+def shore_distances(pos: np.ndarray, segments: np.ndarray, directions: np.ndarray, max_range: float) -> np.ndarray:
+    """Distance from each buoy to where the shoreline takes it out of the water along each direction, capped at
+    ``max_range``: [E, N, 2] → [E, N, rays]. Only crossings from the water out count, so a buoy resting on the
+    shore reads 0 towards the land and the open water's width away from it. ``segments``: ``shore_segments``;
+    ``directions``: ``ray_directions``."""
+    flat = np.ascontiguousarray(pos.reshape(-1, 2), dtype=np.float64)
+    out = np.empty((len(flat), len(directions)))
+    _ray_distances(flat, np.ascontiguousarray(directions, dtype=np.float64), segments, float(max_range), out)
+    return out.reshape(*pos.shape[:-1], len(directions))
+
+
+def shore_distances_reference(pos: np.ndarray, water: Polygon, directions: np.ndarray, max_range: float
+                              ) -> np.ndarray:
+    """``shore_distances`` by shapely, for points strictly inside the water: the nearest point where each ray
+    meets the shoreline. Slow; the tests' reference."""
+    flat = pos.reshape(-1, 2)
+    ends = flat[:, None, :] + max_range * directions[None, :, :]
+    starts = np.repeat(flat[:, None], len(directions), 1)
+    lines = shapely.linestrings(np.stack([starts, ends], axis=2).reshape(-1, 2, 2))
+    hits = shapely.intersection(lines, water.boundary)
+    starts = shapely.points(np.repeat(flat, len(directions), axis=0))
+    dist = np.where(shapely.is_empty(hits), max_range, shapely.distance(starts, hits))
+    return np.minimum(dist, max_range).reshape(*pos.shape[:-1], len(directions))
+
+
+def columns(k: int, rays: int) -> list[str]:
+    """Names of ``local_observation``'s columns, in order."""
+    return (["vx", "vy"] + [f"neighbour{j}_{c}" for j in range(k) for c in ("dx", "dy")]
+            + [f"neighbour{j}_heard" for j in range(k)] + [f"shore_{round(360 * r / rays)}deg" for r in range(rays)])
+
+
+def local_observation(pos: np.ndarray, vel: np.ndarray, segments: np.ndarray, directions: np.ndarray, k: int,
+                      comm_range: float, ray_range: float, alive: np.ndarray | None = None) -> np.ndarray:
+    """Every sensor of every buoy, concatenated in the order of ``columns``: [E, N, 2 + 3k + rays] float32."""
+    rel, mask = neighbours(pos, k, comm_range, alive)
+    e, n = pos.shape[:2]
+    return np.concatenate([own_velocity(vel), rel.reshape(e, n, 2 * k), mask,
+                           shore_distances(pos, segments, directions, ray_range)], axis=-1).astype(np.float32)
