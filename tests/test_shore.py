@@ -10,7 +10,7 @@ import shapely
 
 from replicate.env import CoverageEnv
 from replicate.regions import Region
-from replicate.shore import PULL_BACK, distance_outside, first_crossing, outside, wall_step
+from replicate.shore import PULL_BACK, distance_outside, first_crossing, first_exits, outside, shoreline, wall_step
 
 LAKE = shapely.box(0, 0, 3, 3).difference(shapely.box(1, 1, 2, 2))  # a square lake around a square island
 L_SHAPED = shapely.Polygon([(0, 0), (4, 0), (4, 1), (1, 1), (1, 4), (0, 4)])  # concave: an inner corner at (1, 1)
@@ -65,6 +65,21 @@ def test_first_crossing_matches_shapely_segment_by_segment():
     assert not outside(LAKE, stop).any()
 
 
+@pytest.mark.parametrize("water", [LAKE, L_SHAPED], ids=["island", "concave"])
+@pytest.mark.parametrize("reach", [0.3, 10.0], ids=["grid", "every-edge"])
+def test_first_exits_match_shapely(water, reach):
+    """The compiled crossing (through the grid of a 0.3 m reach, with steps longer than it checking every edge,
+    or with one cell holding every edge) finds shapely's first crossing of the shoreline, step by step."""
+    rng = np.random.default_rng(5)
+    start = inside_points(water, rng, 2000)
+    end = start + rng.normal(scale=0.3, size=start.shape)
+    t, edge = first_exits(shoreline(water, reach), start, end)
+    want = first_crossing(water, start, end)
+    crossed = want < 1.0
+    assert crossed.sum() > 200 and ((edge >= 0) == crossed).all()
+    np.testing.assert_allclose(t[crossed], want[crossed], atol=1e-12)
+
+
 def test_the_env_with_a_wall_keeps_every_buoy_in_the_water(params):
     """Bedok-like concave water with an island, 9 buoys pushed flat out to the east for 60 steps."""
     water = shapely.Polygon([(-1.5, -1.5), (1.5, -1.5), (1.5, 0), (0, 0), (0, 1.5), (-1.5, 1.5)],
@@ -78,12 +93,13 @@ def test_the_env_with_a_wall_keeps_every_buoy_in_the_water(params):
     assert (env.pos[..., 0] > 1.0).any(), "buoys reached the eastern shore and stay on it"
 
 
-def test_the_near_shore_band_changes_nothing(params):
-    """The env checks only the steps that start within one top-speed step of the shore: the same trajectories
-    as checking every step."""
+def test_the_grid_changes_nothing(params):
+    """The env checks only the edges a step from its cell can reach: the same trajectories as checking every
+    edge of the shore for every step."""
     world = dataclasses.replace(params.world, episode_length=80)
     env = CoverageEnv(Region("lake", LAKE), world, params.coverage, n_envs=6, wall=True)
-    assert env.shore_band is not None and env.shore_band.area < 0.6 * LAKE.area  # a band 0.29 m wide
+    assert 0.28 < env.shore.reach < 0.3 and (np.diff(env.shore.starts) == 0).any()  # open water checks nothing
+    every_edge = shoreline(LAKE, 100.0)
     rng = np.random.default_rng(1)
     env.reset(0, start="random")
     pos, vel = env.pos.reshape(-1, 2).copy(), env.vel.reshape(-1, 2).copy()
@@ -91,5 +107,5 @@ def test_the_near_shore_band_changes_nothing(params):
         action = rng.uniform(-1, 1, size=(6, world.n_agents, 2))
         env.step(action)
         vel = vel * (1 - world.damping) + world.sensitivity * action.reshape(-1, 2) / world.mass * world.dt
-        pos, vel = wall_step(LAKE, pos, pos + vel * world.dt, vel)
+        pos, vel = wall_step(LAKE, pos, pos + vel * world.dt, vel, every_edge)
         np.testing.assert_array_equal(env.pos.reshape(-1, 2), pos)

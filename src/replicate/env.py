@@ -18,7 +18,7 @@ from . import rewards
 from .config import CoverageConfig, CRRewardConfig, SWRewardConfig, WorldConfig
 from .geometry import CoverageGeometry
 from .regions import Region, RegionError, signed_distance
-from .shore import near_shore, wall_step
+from .shore import shoreline, wall_step
 
 OBSERVATIONS = ("position", "position_velocity")
 STARTS = ("corner", "opposite", "random")  # config.StartsConfig.start
@@ -111,11 +111,12 @@ class CoverageEnv:
         self.start = "corner"  # where ``reset`` releases the buoys (``STARTS``)
         self.alive: np.ndarray | None = None  # [E, N] bool once a buoy is lost (``lose``); None: all alive
         self.wall = wall
-        self.shore_band = None  # the water a step can leave from (``shore.near_shore``); None: check every step
-        if wall and world.damping > 0:  # |v| ≤ √2·(F/m)·dt/damping with each action component in [−1, 1]
-            reach = 1.01 * np.sqrt(2.0) * world.sensitivity / world.mass * world.dt / world.damping * world.dt
-            self.shore_band = near_shore(region.polygon, reach)
-            shapely.prepare(self.shore_band)
+        self.shore = None  # the shore's edges on a grid (``shore.Shoreline``), with the wall
+        if wall:  # a step is at most |v|·dt, |v| ≤ √2·(F/m)·dt/damping with each action component in [−1, 1]
+            minx, miny, maxx, maxy = region.polygon.bounds
+            reach = (1.01 * np.sqrt(2.0) * world.sensitivity / world.mass * world.dt / world.damping * world.dt
+                     if world.damping > 0 else np.hypot(maxx - minx, maxy - miny))
+            self.shore = shoreline(region.polygon, reach)
         if geofence is None:
             self.fence = None
         else:
@@ -207,7 +208,7 @@ class CoverageEnv:
         end = self.pos + self.vel * w.dt
         if self.wall:
             pos, vel = wall_step(self.region.polygon, self.pos.reshape(-1, 2), end.reshape(-1, 2),
-                                 self.vel.reshape(-1, 2), self.shore_band)
+                                 self.vel.reshape(-1, 2), self.shore)
             end, self.vel = pos.reshape(end.shape), vel.reshape(end.shape)
         self.pos = end
         if self.fence is not None:
