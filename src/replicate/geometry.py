@@ -210,9 +210,9 @@ class CoverageGeometry:
             np.where(filled, d, w + 1).min(axis=1), np.where(filled, d, -w - 1).max(axis=1),
             np.where(filled, lo, w + 1).min(axis=1), np.where(filled, hi, -w - 1).max(axis=1),
         ], axis=1)
-        self._tags = np.zeros(self.nx * self.ny, np.int64)  # scratch grids of the raster kernel
-        self._owner = np.zeros(self.nx * self.ny, np.int64)
-        self._epoch = 0
+        # per column, how many of its first r cells are in the region: [nx, ny + 1]
+        self.mask_prefix = np.zeros((self.nx, self.ny + 1), np.int64)
+        self.mask_prefix[:, 1:] = np.cumsum(self.mask.reshape(self.nx, self.ny), axis=1)
 
     def union_area(self, xy: np.ndarray, area: np.ndarray, marginal: bool = False):
         """A((∪_a Cov(a)) ∩ Reg) per environment: xy [E, N, 2], area [E, N] from ``cover_terms`` → [E].
@@ -236,10 +236,8 @@ class CoverageGeometry:
         q = ((u - cell) * self.subpixel).astype(np.int64)
         k = q[:, 0] * self.subpixel + q[:, 1]
         box = self.stencil_box[k] + cell[:, [0, 0, 1, 1]]  # each stamp's bounding box in cells, [M, 4]
-        shared, self._epoch = _overlap_cells(
-            env_idx, cell, k, box, self.stencil_lo, self.stencil_hi, self.stencil_reach, self.ny, self.mask,
-            self._tags, self._owner, self._epoch, marginal,
-        )
+        shared = _overlap_runs(env_idx, cell, k, box, self.stencil_lo, self.stencil_hi, self.stencil_reach,
+                               self.mask_prefix, marginal)
         cell_area = self.raster_h**2
         excess = np.bincount(env_idx, weights=shared[:, 0], minlength=n_env)
         if marginal:
@@ -250,59 +248,76 @@ class CoverageGeometry:
 
 
 @njit(cache=True)
-def _overlap_cells(env, cell, k, box, lo, hi, reach, ny, mask, tags, owner, epoch, marginal):  # pragma: no cover
-    """Raster kernel of ``union_area``: per stamp, (its share of the overlap excess, its cells covered twice
-    or more, counted only when ``marginal``), in one pass over the stamps' cells.
+def _insert(sorted_values, count, value):  # pragma: no cover
+    """Insert ``value`` into the sorted first ``count`` entries of ``sorted_values``."""
+    j = count
+    while j > 0 and sorted_values[j - 1] > value:
+        sorted_values[j] = sorted_values[j - 1]
+        j -= 1
+    sorted_values[j] = value
+
+
+@njit(cache=True)
+def _overlap_runs(env, cell, k, box, lo, hi, reach, prefix, marginal):  # pragma: no cover
+    """Raster kernel of ``union_area``: per stamp, (its cells inside the region that an earlier stamp of its
+    environment already covers, its cells inside the region covered twice or more, counted only when
+    ``marginal``). The sum of the first over an environment is the union's excess over the sum of its stamps.
 
     A stamp is agent ``cell`` [M, 2]'s stencil ``k`` [M]: rows ``lo[k, c] .. hi[k, c]`` of column c, inside its
-    bounding box ``box`` [M, 4] (x0, x1, y0, y1, inclusive, in cells). ``tags`` [n_cells] holds
-    ``epoch << 16 | count`` per cell and ``owner`` [n_cells] the cell's first stamp; each environment's stamps get
-    a fresh epoch, so a stale tag reads as count 0 and the grid never needs clearing.
-    The excess of a cell covered c ≥ 1 times is c − 1: the first stamp of a cell adds nothing, each later one
-    adds 1. A cell shared by c ≥ 2 stamps counts once for each of them: the first stamp is credited when the
-    second arrives. Only a stamp's cells inside the hull of the other stamps' boxes that meet its own box can be
-    shared, so each stamp visits just those (the outputs are the same as visiting all of its cells).
-    Returns (out [M, 2], next epoch).
-    """
+    bounding box ``box`` [M, 4] (x0, x1, y0, y1, inclusive, in cells); stamps of one environment are consecutive
+    (``env`` [M]). K is convex, so a stamp meets each column in one run of rows, and the kernel works on runs, not
+    cells: in each column, the runs' ends cut it into pieces, each covered by the same stamps throughout, whose
+    cells in the region ``prefix`` [nx, ny + 1] counts (its row r: the column's region cells below row r).
+    Returns out [M, 2]."""
     m = len(cell)
     out = np.zeros((m, 2))
+    first = np.empty(m, np.int64)
+    last = np.empty(m, np.int64)
+    who = np.empty(m, np.int64)
+    cuts = np.empty(2 * m, np.int64)
     start = 0
     while start < m:
         stop = start
         while stop < m and env[stop] == env[start]:
             stop += 1
-        epoch += 1
-        stale = epoch << 16
-        for i in range(start, stop):
-            # the hull of the other stamps' boxes that meet this one, clipped to this one
-            cx0, cx1, cy0, cy1 = box[i, 1] + 1, box[i, 0] - 1, box[i, 3] + 1, box[i, 2] - 1
-            for j in range(start, stop):
-                if j != i and box[j, 0] <= box[i, 1] and box[i, 0] <= box[j, 1] \
-                        and box[j, 2] <= box[i, 3] and box[i, 2] <= box[j, 3]:
-                    cx0, cx1 = min(cx0, box[j, 0]), max(cx1, box[j, 1])
-                    cy0, cy1 = min(cy0, box[j, 2]), max(cy1, box[j, 3])
-            cx0, cx1 = max(cx0, box[i, 0]), min(cx1, box[i, 1])
-            cy0, cy1 = max(cy0, box[i, 2]), min(cy1, box[i, 3])
-            kk = k[i]
-            for x in range(cx0, cx1 + 1):
-                col = x - cell[i, 0] + reach
-                a = max(cell[i, 1] + lo[kk, col], cy0)
-                b = min(cell[i, 1] + hi[kk, col], cy1)
-                for c in range(x * ny + a, x * ny + b + 1):
-                    if mask[c]:
-                        t = tags[c]
-                        if t >= stale:
-                            out[i, 0] += 1.0
-                            tags[c] = t + 1
+        x0, x1 = box[start, 0], box[start, 1]
+        for i in range(start + 1, stop):
+            x0, x1 = min(x0, box[i, 0]), max(x1, box[i, 1])
+        for x in range(x0, x1 + 1):
+            runs = 0
+            for i in range(start, stop):  # in stamp order, so who[] lists the earliest stamp first
+                if box[i, 0] <= x <= box[i, 1]:
+                    col = x - cell[i, 0] + reach
+                    if lo[k[i], col] <= hi[k[i], col]:
+                        first[runs], last[runs] = cell[i, 1] + lo[k[i], col], cell[i, 1] + hi[k[i], col] + 1
+                        who[runs] = i
+                        runs += 1
+            if runs < 2:
+                continue
+            for r in range(runs):  # the pieces' ends, sorted (insertion: a handful of runs)
+                _insert(cuts, 2 * r, first[r])
+                _insert(cuts, 2 * r + 1, last[r])
+            for c in range(2 * runs - 1):
+                a, b = cuts[c], cuts[c + 1]  # rows a .. b − 1
+                if a == b:
+                    continue
+                cells = prefix[x, b] - prefix[x, a]
+                if cells == 0:
+                    continue
+                seen, earliest = 0, -1
+                for r in range(runs):
+                    if first[r] <= a and b <= last[r]:
+                        seen += 1
+                        if seen == 2 and marginal:
+                            out[earliest, 1] += cells
+                        if seen >= 2:
+                            out[who[r], 0] += cells
                             if marginal:
-                                out[i, 1] += 1.0
-                                if t == stale + 1:
-                                    out[owner[c], 1] += 1.0
+                                out[who[r], 1] += cells
                         else:
-                            tags[c] = stale + 1
-                            owner[c] = i
+                            earliest = who[r]
         start = stop
-    return out, epoch
+    return out
 
 
 TABLE_VERSION = 1
