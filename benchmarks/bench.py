@@ -42,8 +42,7 @@ import numpy as np
 import torch
 
 from replicate.config import load_params, run_config
-from replicate.env import CoverageEnv
-from replicate.export import OBS_LAYOUT
+from replicate.env import CoverageEnv, observation_columns
 from replicate.maddpg import MADDPG, ReplayBuffer, clip_grad_per_agent, soft_update
 from replicate.maddpg_loop import LoopMADDPG
 from replicate.pipeline.matrix import cell_seeds, matrix_cells
@@ -124,7 +123,8 @@ CONFIGS = ("paper", "tuned")
 
 def agent_and_batch(params, config: str) -> tuple[MADDPG, object]:
     """A fresh MADDPG of ``config`` (9 agents, CR's per-agent rewards) and one minibatch of random transitions."""
-    cfg, od = params.configs[config].maddpg, len(OBS_LAYOUT[params.configs[config].observation])
+    algo = params.configs[config]
+    cfg, od = algo.maddpg, len(observation_columns(algo.observation, algo.sensors))
     rng = np.random.default_rng(0)
     size = 4 * cfg.batch_size
     buf = ReplayBuffer(size, 9, od, 2)

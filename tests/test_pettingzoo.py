@@ -114,3 +114,17 @@ def test_the_shore_wall_option_passes_the_api_and_seed_tests():
         obs, *_ = env.step({a: np.array([1.0, -1.0], np.float32) for a in env.agents})
         xy = np.stack([o[:2] for o in obs.values()]).astype(float)
         assert distance_outside(env.core.region.polygon, xy).max() < 1e-6  # float32 observations
+
+
+def test_the_local_observation_passes_the_api_and_seed_tests():
+    """``observation="local"`` (velocity, buoys heard, shore rays) behind the wall on Bedok: PettingZoo's API and
+    seed tests, and every observation inside its space."""
+    env = CoverageParallelEnv("bedok", config="tuned", observation="local", shore="wall", episode_length=30)
+    parallel_api_test(env, num_cycles=40)
+    parallel_seed_test(lambda: CoverageParallelEnv("bedok", observation="local", shore="wall", episode_length=30))
+    space = env.observation_space("buoy_0")
+    assert space.shape == (22,)
+    obs, _ = env.reset(seed=3)
+    while env.agents:
+        assert all(space.contains(o) for o in obs.values())
+        obs, *_ = env.step({a: np.array([1.0, 1.0], np.float32) for a in env.agents})

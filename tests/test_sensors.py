@@ -78,3 +78,40 @@ def test_local_observation_has_its_named_columns(regions):
     np.testing.assert_allclose(obs[..., names.index("vx")], vel[..., 0], rtol=1e-6)
     assert names[-8:][0] == "shore_0deg" and names[-1] == "shore_315deg"
     assert not np.isin(["x", "y"], names).any(), "no absolute position"
+
+
+def test_the_local_observation_is_the_same_in_a_moved_lake(params, regions):
+    """No absolute position: the same lake and buoys shifted by 100 m give the same observations."""
+    from shapely import affinity
+
+    from replicate.env import CoverageEnv
+    from replicate.regions import Region
+
+    water = regions["bedok"].polygon
+    moved = affinity.translate(water, 100.0, -40.0)
+    envs = [CoverageEnv(Region(name, poly), params.world, params.coverage, n_envs=3, observation="local",
+                        wall=True, seed=5) for name, poly in (("here", water), ("there", moved))]
+    for env in envs:
+        env.reset(start="random")
+    envs[1].pos = envs[0].pos + np.array([100.0, -40.0])
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        action = rng.uniform(-1, 1, (3, 9, 2))
+        a, b = (env.step(action).obs for env in envs)
+        np.testing.assert_allclose(a, b, atol=1e-5)
+    assert a.shape == (3, 9, 22)
+
+
+def test_lost_buoys_are_not_heard(params, regions):
+    from replicate.env import CoverageEnv
+
+    env = CoverageEnv(regions["square"], params.world, params.coverage, n_envs=2, observation="local", seed=1)
+    env.reset()
+    env.lose(3, np.random.default_rng(0))
+    obs = env.observe()
+    heard = obs[..., 10:14]  # neighbour0..3_heard
+    assert heard.max() == 1.0
+    # a buoy hears at most the 5 others still in service, and every heard slot holds a live buoy's offset
+    rel, mask = sensors.neighbours(env.pos, 4, 2.0, env.alive)
+    np.testing.assert_array_equal(mask, heard)
+    assert (mask.sum(axis=-1) <= 5).all()

@@ -217,3 +217,16 @@ def test_ctrl_c_wrapped_by_a_library_is_still_an_interruption(monkeypatch, capsy
     assert replicate_cli.main(["export", "some-run"]) == 130
     assert "interrupted" in capsys.readouterr().err
     assert not replicate_cli.caused_by_ctrl_c(RuntimeError("plain"))
+
+
+def test_a_policy_of_local_sensors_exports_its_sensors(params, regions, tmp_path):
+    """Actors trained on the local observation export with each sensor and its settings in the metadata, and
+    act on the 22 columns it names."""
+    small_trainer(params, regions["square"], tmp_path / "run", seed=1, episodes=20, observation="local",
+                  shore="wall").run()
+    meta = export_policy(tmp_path / "run" / "actors.pt", regions["square"], tmp_path / "policy.pt")
+    assert len(meta["observation_layout"]) == 22 and "x" not in meta["observation_layout"]
+    assert [s["sensor"] for s in meta["sensors"]] == ["own_velocity", "neighbours", "shore_distances"]
+    assert meta["sensors"][1]["k"] == 4 and meta["sensors"][2]["ray_range_m"] == 2.0
+    assert sum(len(s["columns"]) for s in meta["sensors"]) == 22
+    assert act(tmp_path / "policy.pt", np.zeros((9, 22))).shape == (9, 2)

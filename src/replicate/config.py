@@ -77,6 +77,10 @@ ALGO_RANGES: dict[str, tuple[float, float, bool]] = {
     "maddpg.noise_decay": (0, 1, False),
     "maddpg.lr_end": (0, math.inf, False),
     "maddpg.n_step": (1, math.inf, False),
+    "sensors.neighbours": (1, MAX_AGENTS, False),
+    "sensors.comm_range": (0, math.inf, True),
+    "sensors.rays": (1, 360, False),
+    "sensors.ray_range": (0, math.inf, True),
 }
 
 
@@ -165,8 +169,19 @@ class MADDPGConfig:
 
 
 @dataclass(frozen=True)
+class SensorsConfig:
+    """What a buoy senses with ``observation: local`` (``sensors.py``): its velocity, the ``neighbours`` nearest
+    buoys it hears within ``comm_range`` m, and the shore along ``rays`` compass directions up to ``ray_range`` m."""
+
+    neighbours: int = 4
+    comm_range: float = 2.0
+    rays: int = 8
+    ray_range: float = 2.0
+
+
+@dataclass(frozen=True)
 class AlgoConfig:
-    observation: Literal["position", "position_velocity"]
+    observation: Literal["position", "position_velocity", "local"]
     geofence: float | None
     reward_scale: float
     union_credit: Literal["shared", "difference"]
@@ -180,6 +195,7 @@ class AlgoConfig:
     # "fence": the geofence above bounds the world (None: the paper's open plane); "wall": the shoreline does,
     # no buoy ever leaves the water (``shore.wall_step``)
     shore: Literal["fence", "wall"] = "fence"
+    sensors: SensorsConfig = SensorsConfig()  # read with observation "local" only
     # Values for one method only, chosen by that method's own search (``params.yaml`` ``tuning.method``):
     # method → {dotted key inside this config: value}. ``run_config`` applies them; a run's config holds none.
     per_method: dict[str, dict[str, Any]] | None = None

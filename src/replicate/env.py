@@ -14,13 +14,23 @@ import shapely
 from shapely.geometry import Polygon, box
 from shapely.ops import nearest_points
 
-from . import rewards
-from .config import CoverageConfig, CRRewardConfig, SWRewardConfig, WorldConfig
+from . import rewards, sensors
+from .config import CoverageConfig, CRRewardConfig, SensorsConfig, SWRewardConfig, WorldConfig
 from .geometry import CoverageGeometry
 from .regions import Region, RegionError, signed_distance
 from .shore import shoreline, wall_step
 
-OBSERVATIONS = ("position", "position_velocity")
+OBSERVATIONS = ("position", "position_velocity", "local")  # local: no absolute position (``sensors``)
+
+
+def observation_columns(observation: str, sensors_config: SensorsConfig | None = None) -> list[str]:
+    """The names of an observation's columns, in order (the exported policy's layout)."""
+    if observation == "local":
+        sc = sensors_config or SensorsConfig()
+        return sensors.columns(sc.neighbours, sc.rays)
+    return ["x", "y"] if observation == "position" else ["x", "y", "vx", "vy"]
+
+
 STARTS = ("corner", "opposite", "random")  # config.StartsConfig.start
 
 
@@ -78,6 +88,7 @@ class CoverageEnv:
         sw: SWRewardConfig | None = None,
         cr: CRRewardConfig | None = None,
         observation: str = "position",
+        sensors_config: SensorsConfig | None = None,
         geofence: float | None = None,
         wall: bool = False,
         union_credit: str = "shared",
@@ -102,7 +113,11 @@ class CoverageEnv:
         self.sw, self.cr = sw, cr
         self.observation = observation
         self.union_credit = union_credit
-        self.obs_dim = 2 if observation == "position" else 4
+        self.sensor_config = sensors_config or SensorsConfig()
+        self.obs_dim = len(observation_columns(observation, self.sensor_config))
+        if observation == "local":  # the shore's edges and the rays' directions, once
+            self.shore_edges = sensors.shore_segments(region.polygon)
+            self.ray_directions = sensors.ray_directions(self.sensor_config.rays)
         self.patch = start_patch(region.polygon, world.start_patch)  # first: it refuses a region too narrow
         self.geometry = CoverageGeometry(
             region.polygon, coverage.radius, coverage.edges, coverage.table_spacing, coverage.raster_spacing,
@@ -112,11 +127,9 @@ class CoverageEnv:
         self.alive: np.ndarray | None = None  # [E, N] bool once a buoy is lost (``lose``); None: all alive
         self.wall = wall
         self.shore = None  # the shore's edges on a grid (``shore.Shoreline``), with the wall
-        if wall:  # a step is at most |v|·dt, |v| ≤ √2·(F/m)·dt/damping with each action component in [−1, 1]
-            minx, miny, maxx, maxy = region.polygon.bounds
-            reach = (1.01 * np.sqrt(2.0) * world.sensitivity / world.mass * world.dt / world.damping * world.dt
-                     if world.damping > 0 else np.hypot(maxx - minx, maxy - miny))
-            self.shore = shoreline(region.polygon, reach)
+        self.current = None  # the water's drift (``currents.Current``), None: still water
+        if wall:
+            self.shore = shoreline(region.polygon, self.step_reach())
         if geofence is None:
             self.fence = None
         else:
@@ -193,19 +206,47 @@ class CoverageEnv:
         return self.live(self.pos)
 
     def observe(self) -> np.ndarray:
-        """Own position (paper) or own position and velocity. → [E, N, obs_dim] float32."""
+        """Own position (paper), own position and velocity, or the local sensors (``sensors.local_observation``:
+        velocity, the buoys heard, the shore's distance along rays). → [E, N, obs_dim] float32."""
+        if self.observation == "local":
+            sc = self.sensor_config
+            return sensors.local_observation(self.pos, self.vel, self.shore_edges, self.ray_directions,
+                                             sc.neighbours, sc.comm_range, sc.ray_range, self.alive)
         obs = self.pos if self.observation == "position" else np.concatenate([self.pos, self.vel], axis=-1)
         return obs.astype(np.float32)
 
     # ---- dynamics ----------------------------------------------------------------------------------------
+    def step_reach(self) -> float:
+        """The longest step a buoy can make: |v|·dt with |v| ≤ √2·(F/m)·dt/damping (each action component in
+        [−1, 1]), plus the current's fastest drift; without damping, the region's diagonal."""
+        w = self.world
+        minx, miny, maxx, maxy = self.region.polygon.bounds
+        if w.damping <= 0:
+            return float(np.hypot(maxx - minx, maxy - miny))
+        drift = 0.0 if self.current is None else self.current.max_speed()
+        return 1.01 * (np.sqrt(2.0) * w.sensitivity / w.mass * w.dt / w.damping + drift) * w.dt
+
+    def set_current(self, current) -> None:
+        """Let the water move (``currents.Current`` of these E environments; None: still water). Behind the wall,
+        the shore's grid grows to the longer steps."""
+        if current is not None and len(current.flow) != self.n_envs:
+            raise ValueError(f"a current for {len(current.flow)} environments, the env has {self.n_envs}")
+        self.current = current
+        if self.wall and self.step_reach() > self.shore.reach:
+            self.shore = shoreline(self.region.polygon, self.step_reach())
+
     def integrate(self, action: np.ndarray) -> None:
-        """MPE semi-implicit Euler: v ← v(1 − damping) + (F/m)dt, p ← p + v dt, F = sensitivity·a."""
+        """MPE semi-implicit Euler: v ← v(1 − damping) + (F/m)dt, p ← p + (v + c(p)) dt, F = sensitivity·a, c the
+        current's drift (0 in still water)."""
         w = self.world
         force = w.sensitivity * np.clip(action, -1.0, 1.0)
         self.vel = self.vel * (1.0 - w.damping) + (force / w.mass) * w.dt
         if self.alive is not None:  # lost buoys stay where they were lost
             self.vel = np.where(self.alive[..., None], self.vel, 0.0)
-        end = self.pos + self.vel * w.dt
+        drift = 0.0 if self.current is None else self.current.at(self.pos)  # the water carries the buoys
+        if self.current is not None and self.alive is not None:
+            drift = np.where(self.alive[..., None], drift, 0.0)
+        end = self.pos + (self.vel + drift) * w.dt
         if self.wall:
             pos, vel = wall_step(self.region.polygon, self.pos.reshape(-1, 2), end.reshape(-1, 2),
                                  self.vel.reshape(-1, 2), self.shore)

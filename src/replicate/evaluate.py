@@ -158,6 +158,7 @@ def eval_env(region: Region, rc: RunConfig, episodes: int, observation: str = "p
         rc.coverage,
         n_envs=episodes,
         observation=observation,
+        sensors_config=rc.algo.sensors,
         geofence=rc.algo.geofence,
         wall=rc.algo.shore == "wall",
     )

@@ -18,10 +18,11 @@ from torch import nn
 
 from . import artifacts
 from .artifacts import CheckpointError
+from .config import SensorsConfig
+from .env import observation_columns
 from .regions import Region
+from .sensors import describe
 from .train import load_actors
-
-OBS_LAYOUT = {"position": ["x", "y"], "position_velocity": ["x", "y", "vx", "vy"]}
 
 
 class SwarmPolicy(nn.Module):
@@ -61,7 +62,7 @@ def export_policy(actors_path: str | Path, region: Region, out: str | Path, sens
         "n_agents": int(net.weights[0].shape[0]),
         "agents": [f"buoy_{i}" for i in range(int(net.weights[0].shape[0]))],
         "observation": meta["observation"],
-        "observation_layout": OBS_LAYOUT[meta["observation"]],
+        "observation_layout": observation_columns(meta["observation"], sensor_config(meta)),
         "action": f"force direction in [-1, 1]^2 per buoy; force = {sensitivity} * action (simulation units)",
         "input_shape": "[N, obs_dim] or [batch, N, obs_dim], simulation coordinates",
         "region": region.name,
@@ -72,12 +73,20 @@ def export_policy(actors_path: str | Path, region: Region, out: str | Path, sens
         "to_real": "utm = offset + scale * sim; sim = (utm - offset) / scale",
         "trained": {k: ident[k] for k in ("config", "method", "seed", "episodes")},
     }
+    if meta["observation"] == "local":
+        metadata["sensors"] = describe(sensor_config(meta))
+        metadata["input_shape"] = "[N, obs_dim] or [batch, N, obs_dim], simulation units, in the buoy's own frame"
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         torch.jit.save(module, buf, _extra_files={"metadata.json": json.dumps(metadata)})
     artifacts.atomic_write_bytes(out, buf.getvalue())
     return metadata
+
+
+def sensor_config(meta: dict) -> SensorsConfig | None:
+    """The sensors a run's actors observe with (``observation: local``), from their metadata."""
+    return SensorsConfig(**meta["sensors"]) if meta.get("sensors") else None
 
 
 def load_policy(path: str | Path) -> tuple[torch.jit.ScriptModule, dict]:
@@ -110,7 +119,11 @@ def act(path: str | Path, observations: np.ndarray, real: bool = False) -> np.nd
             raise ValueError(f"{path}: the policy's region ({meta.get('region')}) is synthetic, with no map "
                              "coordinates; give its observations in simulation units (without --real)")
         obs = obs.copy()
-        obs[:, :2] = (obs[:, :2] - np.asarray(meta["offset"])) / meta["scale_m_per_sim_m"]
-        obs[:, 2:] = obs[:, 2:] / meta["scale_m_per_sim_m"]
+        if meta["observation"] == "local":  # lengths and speeds in the buoy's frame; a heard-mask stays
+            lengths = [not c.endswith("_heard") for c in meta["observation_layout"]]
+            obs[:, lengths] = obs[:, lengths] / meta["scale_m_per_sim_m"]
+        else:
+            obs[:, :2] = (obs[:, :2] - np.asarray(meta["offset"])) / meta["scale_m_per_sim_m"]
+            obs[:, 2:] = obs[:, 2:] / meta["scale_m_per_sim_m"]
     with torch.no_grad():
         return module(torch.as_tensor(obs, dtype=torch.float32)).numpy()

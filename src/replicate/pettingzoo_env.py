@@ -18,7 +18,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from .config import Params, load_params, packaged, region_world
+from .config import Params, SensorsConfig, load_params, packaged, region_world
 from .env import CoverageEnv
 from .regions import Region, make_region
 
@@ -54,6 +54,7 @@ class CoverageParallelEnv(ParallelEnv):
         radius: float | None = None,
         reward: str | None = "cr",
         observation: str | None = None,
+        sensors_config: SensorsConfig | None = None,
         geofence: float | None | Unset = UNSET,
         reward_scale: float | None = None,
         union_credit: str | None = None,
@@ -84,7 +85,8 @@ class CoverageParallelEnv(ParallelEnv):
         self.reward_scale = float(pick(reward_scale, "reward_scale", 1.0))
         self.core = CoverageEnv(
             region, world, coverage, n_envs=1, reward=reward, sw=params.sw_reward, cr=cr,
-            observation=pick(observation, "observation", "position"), geofence=fence,
+            observation=pick(observation, "observation", "position"),
+            sensors_config=pick(sensors_config, "sensors", SensorsConfig()), geofence=fence,
             wall=pick(shore, "shore", "fence") == "wall", union_credit=pick(union_credit, "union_credit", "shared"),
         )
         self.possible_agents = [f"buoy_{i}" for i in range(world.n_agents)]
@@ -98,7 +100,7 @@ class CoverageParallelEnv(ParallelEnv):
 
     @functools.cache  # noqa: B019 - PettingZoo expects the same space object per agent
     def observation_space(self, agent: str) -> spaces.Box:
-        lo, hi = self._bounds
+        lo, hi = self._bounds if self.core.observation != "local" else local_bounds(self.core)
         d = self.core.obs_dim
         return spaces.Box(lo[:d].astype(np.float32), hi[:d].astype(np.float32), dtype=np.float32)
 
@@ -145,18 +147,37 @@ class CoverageParallelEnv(ParallelEnv):
         pass
 
 
+def top_speed(core: CoverageEnv) -> float:
+    """The largest velocity component a buoy reaches: the MPE update's terminal speed sensitivity·dt /
+    (mass·damping) per component, or behind a wall, which turns a velocity along the shore, its norm (√2 times)."""
+    w = core.world
+    v_max = w.sensitivity * w.dt / (w.mass * w.damping)
+    return v_max * np.sqrt(2.0) if core.wall else v_max
+
+
 def reachable_bounds(core: CoverageEnv) -> tuple[np.ndarray, np.ndarray]:
     """Per-buoy bounds of [x, y, vx, vy]: a velocity component never exceeds the terminal speed of the MPE
     update, v_max = sensitivity·dt / (mass·damping), so a buoy released in the region is at most T·v_max·dt
     outside its box (or at the geofence; never outside the water behind a wall)."""
     w = core.world
-    v_max = w.sensitivity * w.dt / (w.mass * w.damping)
+    v_max = top_speed(core)
     minx, miny, maxx, maxy = core.region.polygon.bounds
     reach = w.episode_length * v_max * w.dt if core.fence is None and not core.wall else 0.0
     box = (np.array([minx, miny]), np.array([maxx, maxy]))
     lo, hi = core.fence if core.fence is not None and not core.wall else box
     return (np.concatenate([lo - reach, [-v_max, -v_max]]) - 1e-6,
             np.concatenate([hi + reach, [v_max, v_max]]) + 1e-6)
+
+
+def local_bounds(core: CoverageEnv) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of the local observation (``sensors.columns``): velocity within ±v_max, a heard buoy within the
+    communication range, its mask in [0, 1], a shore distance in [0, ray range]."""
+    sc = core.sensor_config
+    v_max = top_speed(core)
+    k = sc.neighbours
+    lo = np.concatenate([[-v_max] * 2, [-sc.comm_range] * 2 * k, [0.0] * k, [0.0] * sc.rays])
+    hi = np.concatenate([[v_max] * 2, [sc.comm_range] * 2 * k, [1.0] * k, [sc.ray_range] * sc.rays])
+    return lo - 1e-6, hi + 1e-6
 
 
 def parallel_env(**kwargs) -> CoverageParallelEnv:

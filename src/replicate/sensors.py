@@ -120,6 +120,21 @@ def columns(k: int, rays: int) -> list[str]:
             + [f"neighbour{j}_heard" for j in range(k)] + [f"shore_{round(360 * r / rays)}deg" for r in range(rays)])
 
 
+def describe(config) -> list[dict]:
+    """Each sensor of ``local_observation`` as the exported policy's metadata lists it: its function, its columns,
+    its settings (``config``: a ``config.SensorsConfig``)."""
+    k, rays = config.neighbours, config.rays
+    names = columns(k, rays)
+    return [
+        {"sensor": "own_velocity", "columns": names[:2], "shape": "[E, N, 2]", "units": "m/s"},
+        {"sensor": "neighbours", "columns": names[2:2 + 3 * k], "shape": f"[E, N, {k}, 2] and mask [E, N, {k}]",
+         "k": k, "comm_range_m": config.comm_range, "units": "m, relative to the buoy; mask 1 = heard"},
+        {"sensor": "shore_distances", "columns": names[2 + 3 * k:], "shape": f"[E, N, {rays}]",
+         "rays": rays, "ray_range_m": config.ray_range, "units": "m, capped at ray_range_m",
+         "directions": "compass, east first, counter-clockwise"},
+    ]
+
+
 def local_observation(pos: np.ndarray, vel: np.ndarray, segments: np.ndarray, directions: np.ndarray, k: int,
                       comm_range: float, ray_range: float, alive: np.ndarray | None = None) -> np.ndarray:
     """Every sensor of every buoy, concatenated in the order of ``columns``: [E, N, 2 + 3k + rays] float32."""

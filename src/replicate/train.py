@@ -107,6 +107,7 @@ def make_env(region: Region, rc: RunConfig, n_envs: int, seed, reward: bool = Tr
         sw=rc.sw_reward,
         cr=cr,
         observation=rc.algo.observation,
+        sensors_config=rc.algo.sensors,
         geofence=rc.algo.geofence,
         wall=rc.algo.shore == "wall",
         union_credit=rc.algo.union_credit,
@@ -399,6 +400,7 @@ class Trainer:
                 "identity": self.identity(k),
                 "observation": self.rc.algo.observation,
                 "obs_dim": self.env.obs_dim,
+                **({"sensors": to_dict(self.rc.algo.sensors)} if self.rc.algo.observation == "local" else {}),
                 "hidden": self.rc.algo.maddpg.hidden,
             }
             last = {**meta, "actor": run_stack.network_state(self.agent, "actor", k), "selected_episode": None}
