@@ -1,0 +1,89 @@
+"""The fleet-size-agnostic MADDPG (``replicate.shared_maddpg``): one actor and one critic for any N, any order,
+padding and lost buoys left out."""
+
+import numpy as np
+import torch
+
+from replicate.shared_maddpg import FleetBatch, PooledCritic, SharedActor, SharedMADDPG, SharedMADDPGConfig
+
+OD, AD = 22, 2
+
+
+def fleet(n: int, batch: int = 16, seed: int = 0, live=None) -> FleetBatch:
+    g = torch.Generator().manual_seed(seed)
+
+    def r(*shape):
+        return torch.randn(*shape, generator=g)
+
+    live = torch.ones(batch, n, dtype=torch.bool) if live is None else live
+    return FleetBatch(obs=r(batch, n, OD), act=torch.rand(batch, n, AD, generator=g) * 2 - 1, rew=r(batch, n),
+                      next_obs=r(batch, n, OD), pos=r(batch, n, 2) * 2, next_pos=r(batch, n, 2) * 2, live=live,
+                      next_live=live, disc=torch.full((batch,), 0.9))
+
+
+def test_one_network_scores_any_fleet_size():
+    torch.manual_seed(0)
+    actor, critic = SharedActor(OD, AD, 64), PooledCritic(OD, AD, 64, 32)
+    for n in (1, 5, 9, 20, 50):
+        b = fleet(n, batch=4)
+        a, pre = actor(b.obs)
+        assert a.shape == pre.shape == (4, n, AD) and a.abs().max() <= 1
+        assert critic(b.obs, a, b.pos, b.live).shape == (4, n)
+
+
+def test_the_critic_does_not_care_about_order():
+    torch.manual_seed(1)
+    critic, b = PooledCritic(OD, AD, 64, 32), fleet(9)
+    perm = torch.randperm(9)
+    q = critic(b.obs, b.act, b.pos, b.live)
+    q_perm = critic(b.obs[:, perm], b.act[:, perm], b.pos[:, perm], b.live[:, perm])
+    torch.testing.assert_close(q_perm, q[:, perm], rtol=1e-5, atol=1e-5)
+
+
+def test_padding_and_lost_buoys_change_nothing_for_the_others():
+    """A fleet of 6 padded to 9, and the same 6 with 3 more buoys lost: the 6 get the same Q as alone."""
+    torch.manual_seed(2)
+    critic = PooledCritic(OD, AD, 64, 32)
+    b = fleet(9)
+    live = torch.zeros(16, 9, dtype=torch.bool)
+    live[:, :6] = True
+    q_padded = critic(b.obs, b.act, b.pos, live)[:, :6]
+    q_alone = critic(b.obs[:, :6], b.act[:, :6], b.pos[:, :6], live[:, :6])
+    torch.testing.assert_close(q_padded, q_alone, rtol=1e-5, atol=1e-6)
+
+
+def test_updates_fit_a_fixed_batch_and_leave_padding_out():
+    """On one fixed batch, 200 updates bring the critic's TD loss down; the rewards of padded buoys, however
+    large, do not enter it."""
+    agent = SharedMADDPG(OD, AD, SharedMADDPGConfig(critic_lr=3e-3), seed=0)
+    live = torch.ones(32, 12, dtype=torch.bool)
+    live[:, 9:] = False
+    b = fleet(12, batch=32, live=live)
+    b.rew[:, 9:] = 1e6
+    first = agent.update(b)["critic_loss"]
+    for _ in range(200):
+        stats = agent.update(b)
+    assert np.isfinite(stats["critic_loss"]) and stats["critic_loss"] < 0.5 * first
+    assert stats["q_abs"] < 100, "the padded buoys' rewards were left out"
+
+
+def test_the_actor_step_leaves_the_critic_alone():
+    agent = SharedMADDPG(OD, AD, SharedMADDPGConfig(), seed=3)
+    b = fleet(9)
+    agent.update(b)
+    before = [p.detach().clone() for p in agent.critic.parameters()]
+    grads = [p.grad.clone() for p in agent.critic.parameters()]
+    mu, pre = agent.actor(b.obs)
+    (-agent.critic(b.obs, mu, b.pos, b.live).mean()).backward(inputs=list(agent.actor.parameters()))
+    assert all(torch.equal(g, p.grad) for g, p in zip(grads, agent.critic.parameters()))
+    assert all(torch.equal(x, p) for x, p in zip(before, agent.critic.parameters()))
+
+
+def test_same_seed_same_networks_and_torch_stream_untouched():
+    torch.manual_seed(123)
+    expected = torch.rand(3)
+    torch.manual_seed(123)
+    a, b = SharedMADDPG(OD, AD, SharedMADDPGConfig(), seed=7), SharedMADDPG(OD, AD, SharedMADDPGConfig(), seed=7)
+    assert torch.equal(torch.rand(3), expected), "building the networks drew nothing from torch's global stream"
+    for p, q in zip(a.actor.parameters(), b.actor.parameters()):
+        assert torch.equal(p, q)
