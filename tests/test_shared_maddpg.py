@@ -4,7 +4,8 @@ padding and lost buoys left out."""
 import numpy as np
 import torch
 
-from replicate.shared_maddpg import FleetBatch, PooledCritic, SharedActor, SharedMADDPG, SharedMADDPGConfig
+from replicate.config import SharedLearnerConfig
+from replicate.shared_maddpg import FleetBatch, PooledCritic, SharedActor, SharedMADDPG
 
 OD, AD = 22, 2
 
@@ -55,7 +56,7 @@ def test_padding_and_lost_buoys_change_nothing_for_the_others():
 def test_updates_fit_a_fixed_batch_and_leave_padding_out():
     """On one fixed batch, 200 updates bring the critic's TD loss down; the rewards of padded buoys, however
     large, do not enter it."""
-    agent = SharedMADDPG(OD, AD, SharedMADDPGConfig(critic_lr=3e-3), seed=0)
+    agent = SharedMADDPG(OD, AD, SharedLearnerConfig(critic_lr=3e-3), seed=0)
     live = torch.ones(32, 12, dtype=torch.bool)
     live[:, 9:] = False
     b = fleet(12, batch=32, live=live)
@@ -68,7 +69,7 @@ def test_updates_fit_a_fixed_batch_and_leave_padding_out():
 
 
 def test_the_actor_step_leaves_the_critic_alone():
-    agent = SharedMADDPG(OD, AD, SharedMADDPGConfig(), seed=3)
+    agent = SharedMADDPG(OD, AD, SharedLearnerConfig(), seed=3)
     b = fleet(9)
     agent.update(b)
     before = [p.detach().clone() for p in agent.critic.parameters()]
@@ -83,7 +84,7 @@ def test_same_seed_same_networks_and_torch_stream_untouched():
     torch.manual_seed(123)
     expected = torch.rand(3)
     torch.manual_seed(123)
-    a, b = SharedMADDPG(OD, AD, SharedMADDPGConfig(), seed=7), SharedMADDPG(OD, AD, SharedMADDPGConfig(), seed=7)
+    a, b = SharedMADDPG(OD, AD, SharedLearnerConfig(), seed=7), SharedMADDPG(OD, AD, SharedLearnerConfig(), seed=7)
     assert torch.equal(torch.rand(3), expected), "building the networks drew nothing from torch's global stream"
     for p, q in zip(a.actor.parameters(), b.actor.parameters()):
         assert torch.equal(p, q)

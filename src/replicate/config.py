@@ -96,6 +96,36 @@ def check_algo(algo: AlgoConfig, where: str) -> None:
             within(getattr(algo, key), f"{where}.{key}", 0)
 
 
+def check_general(g: GeneralConfig, regions: dict) -> None:
+    """The ``general`` section's values in their ranges and its regions known."""
+    unknown = sorted(set(g.regions) - set(regions))
+    if unknown:
+        raise ConfigError(f"general.regions: unknown region(s) {unknown}; known: {sorted(regions)}")
+    for key in ("random_starts", "lose_prob", "lose_fraction", "current_prob", "noise_decay"):
+        within(getattr(g, key), f"general.{key}", 0, 1)
+    for key in ("n_envs", "episodes", "episode_length", "batch_size", "buffer_size", "update_every"):
+        within(getattr(g, key), f"general.{key}", 1)
+    for key in ("learning_starts", "lakes", "current_speed", "noise_start", "noise_end"):
+        within(getattr(g, key), f"general.{key}", 0)
+    within(g.gamma, "general.gamma", 0, 1, open_lo=True)
+    within(g.reward_scale, "general.reward_scale", 0, open_lo=True)
+    for n in (*g.fleet, *g.lake_fleet):
+        within(n, "general.fleet and general.lake_fleet", 2, MAX_AGENTS)
+    if g.lake_fleet[0] > g.lake_fleet[1] or not 0 < g.lake_ratio[0] <= g.lake_ratio[1]:
+        raise ConfigError(f"general.lake_fleet and lake_ratio are [low, high] ranges, got {list(g.lake_fleet)} "
+                          f"and {list(g.lake_ratio)}")
+    if not g.seeds:
+        raise ConfigError("general.seeds: at least one seed")
+    for key in ("neighbours", "comm_range", "rays", "ray_range"):
+        lo, hi, open_lo = ALGO_RANGES[f"sensors.{key}"]
+        within(getattr(g.sensors, key), f"general.sensors.{key}", lo, hi, open_lo)
+    for key in ("hidden", "embed"):
+        within(getattr(g.learner, key), f"general.learner.{key}", 1)
+    for key in ("actor_lr", "critic_lr", "grad_clip"):
+        within(getattr(g.learner, key), f"general.learner.{key}", 0, open_lo=True)
+    within(g.learner.tau, "general.learner.tau", 0, 1, open_lo=True)
+
+
 def check_seed(seed: int, where: str = "--seed") -> int:
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
         raise ConfigError(f"{where} must be a whole number from 0 to {MAX_SEED}, got {seed!r}")
@@ -380,6 +410,51 @@ class AblationConfig:
 
 
 @dataclass(frozen=True)
+class SharedLearnerConfig:
+    """The networks and optimisers of ``shared_maddpg.SharedMADDPG``."""
+
+    hidden: int = 64
+    embed: int = 64  # width of φ, the embedding of one other buoy that the critic pools
+    actor_lr: float = 1e-3
+    critic_lr: float = 1e-3
+    tau: float = 0.01
+    grad_clip: float = 0.5
+    actor_reg: float = 1e-3  # on the pre-tanh action, as openai/maddpg
+
+
+@dataclass(frozen=True)
+class GeneralConfig:
+    """One policy for every lake (``general_train``): the worlds it trains on, the events, the schedule."""
+
+    regions: tuple[str, ...]  # named regions of ``regions`` trained on, with ``fleet`` buoys each
+    fleet: tuple[int, ...]  # N of a named region's world, one drawn per world
+    lakes: int  # generated training lakes (``lakes.draw_spec`` from the run's seed)
+    lake_fleet: tuple[int, int]  # N range of a generated lake
+    lake_ratio: tuple[float, float]  # N·A(Cov)/A(Reg) range of a generated lake
+    random_starts: float  # share of batches released scattered over the water (the rest in the corner patch)
+    lose_prob: float  # share of batches that lose buoys at T/2 ...
+    lose_fraction: float  # ... up to this share of the fleet
+    current_prob: float  # share of batches in moving water ...
+    current_speed: float  # ... up to this drift speed, m/s (top speed is 2)
+    n_envs: int
+    episodes: int
+    episode_length: int
+    reward_scale: float
+    union_weight: float  # c2 of eq. (6), with the difference credit
+    gamma: float
+    batch_size: int
+    buffer_size: int
+    learning_starts: int  # transitions
+    update_every: int  # transitions (of one environment) per update
+    noise_start: float
+    noise_end: float
+    noise_decay: float  # share of training over which σ falls from start to end
+    seeds: tuple[int, ...]
+    sensors: SensorsConfig
+    learner: SharedLearnerConfig
+
+
+@dataclass(frozen=True)
 class Params:
     """Everything in ``params.yaml``. Stage-specific sections the package does not read are kept as mappings."""
 
@@ -396,6 +471,7 @@ class Params:
     ablation: AblationConfig
     tuning: TuningConfig
     report: ReportConfig
+    general: GeneralConfig
     stages: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -439,6 +515,8 @@ class Params:
         for name, spec in self.regions.items():
             if spec.episode_length is not None and spec.episode_length < 1:
                 raise ConfigError(f"regions.{name}.episode_length must be at least 1, got {spec.episode_length}")
+
+        check_general(self.general, self.regions)
 
     def pipeline_configs(self) -> list[str]:
         return list(self.stages.get("pipeline", {}).get("configs", []))

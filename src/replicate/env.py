@@ -269,18 +269,27 @@ class CoverageEnv:
         return StepResult(self.observe(), reward, union, self.t >= self.world.episode_length)
 
     def reward(self) -> tuple[np.ndarray, np.ndarray]:
-        """The configured reward at the current positions: ([E, N], union area [E] or NaN)."""
+        """The configured reward at the current positions: ([E, N], union area [E] or NaN). After a loss the
+        buoys still in service are rewarded among themselves; a lost buoy's reward is 0."""
+        if self.alive is not None:
+            live, union = self._reward(self.live_positions())
+            out = np.zeros((self.n_envs, self.n_agents))
+            out[self.alive] = live.ravel()
+            return out, union
+        return self._reward(self.pos)
+
+    def _reward(self, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if self.reward_kind == "sw":
-            d = signed_distance(self.region.polygon, self.pos)
-            return rewards.sw_reward(d, self.pos, self.sw), np.full(self.n_envs, np.nan)
+            d = signed_distance(self.region.polygon, pos)
+            return rewards.sw_reward(d, pos, self.sw), np.full(self.n_envs, np.nan)
         if self.reward_kind == "cr":
-            terms = self.geometry.cover_terms(self.pos)
+            terms = self.geometry.cover_terms(pos)
             if self.union_credit == "difference":
-                union, credit = self.geometry.union_area(self.pos, terms.area, marginal=True)
+                union, credit = self.geometry.union_area(pos, terms.area, marginal=True)
             else:
-                union = credit = self.geometry.union_area(self.pos, terms.area)
+                union = credit = self.geometry.union_area(pos, terms.area)
             return rewards.cr_reward(terms, credit, self.cr), union
-        return np.zeros((self.n_envs, self.n_agents)), np.full(self.n_envs, np.nan)
+        return np.zeros(pos.shape[:2]), np.full(self.n_envs, np.nan)
 
     def coverage_fraction(self) -> np.ndarray:
         """Fast-path coverage fraction of the current positions (SPEC §8 uses the exact one). → [E]."""

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from .config import SharedLearnerConfig
+
 
 def mlp(sizes: list[int]) -> nn.Sequential:
     """ReLU MLP with a linear last layer."""
@@ -84,21 +86,10 @@ class FleetBatch:
     disc: torch.Tensor
 
 
-@dataclass(frozen=True)
-class SharedMADDPGConfig:
-    hidden: int = 64
-    embed: int = 64
-    actor_lr: float = 1e-3
-    critic_lr: float = 1e-3
-    tau: float = 0.01
-    grad_clip: float = 0.5
-    actor_reg: float = 1e-3  # on the pre-tanh action, as openai/maddpg
-
-
 class SharedMADDPG:
     """One shared actor and one pooled critic with their targets, and the update that trains them."""
 
-    def __init__(self, obs_dim: int, act_dim: int, cfg: SharedMADDPGConfig, seed: int = 0):
+    def __init__(self, obs_dim: int, act_dim: int, cfg: SharedLearnerConfig, seed: int = 0):
         self.cfg = cfg
         with torch.random.fork_rng():  # the initial weights from ``seed``, leaving torch's global stream as it was
             torch.manual_seed(seed)

@@ -1,0 +1,220 @@
+"""Training one policy for every lake: the shared actor and pooled critic (``shared_maddpg``) on many worlds.
+
+A world is a region and a fleet size: the named regions of ``general.regions`` and ``general.lakes`` generated
+lakes (``lakes.draw_spec`` from the run's seed, so never a held-out lake), each with N buoys behind the shore
+wall, observing only their local sensors (``observation: local``), rewarded by CR's eq. (5)-(6) with the
+difference credit. Each batch of E episodes plays in one world, the worlds in turn; a batch may start scattered
+over the water instead of in the corner patch, lose up to a third of its buoys half-way, or drift in a current.
+Transitions of fleets of different sizes share one replay memory, padded to the largest fleet and masked.
+
+The run keeps the actor that covered best on its validation starts (every named region from the corner, each
+world scattered, fixed seeds drawn from the run's seed) and writes into its folder: ``actor.pt`` (weights and
+the sensors it reads), ``curve.csv.gz`` (one row per batch), ``run.json``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from . import artifacts
+from .config import GeneralConfig, Params, region_world, to_dict
+from .currents import random_current
+from .env import CoverageEnv, observation_columns
+from .lakes import draw_spec, lake_region
+from .regions import Region, make_region
+from .shared_maddpg import FleetBatch, SharedMADDPG
+
+CURVE_COLUMNS = ["batch", "episodes", "world", "n_agents", "start", "lost", "current", "coverage", "critic_loss",
+                 "q_abs", "sigma", "validation"]
+
+
+@dataclass
+class World:
+    """One training world: a region, its fleet size, and its E environments (CR reward, wall, local sensors)."""
+
+    region: Region
+    n_agents: int
+    env: CoverageEnv
+
+
+def world_env(params: Params, gc: GeneralConfig, region: Region, n_agents: int, n_envs: int, seed,
+              reward: bool = True) -> CoverageEnv:
+    world = dataclasses.replace(region_world(params, None), n_agents=n_agents, episode_length=gc.episode_length)
+    cr = dataclasses.replace(params.cr_reward, c2=gc.union_weight)
+    return CoverageEnv(region, world, params.coverage, n_envs=n_envs, reward="cr" if reward else None, cr=cr,
+                       observation="local", sensors_config=gc.sensors, wall=True, union_credit="difference",
+                       seed=seed)
+
+
+def coverage_area(params: Params) -> float:
+    """A(Cov): the area of one buoy's coverage polygon (a regular ``edges``-gon of circumradius R)."""
+    c = params.coverage
+    return 0.5 * c.edges * c.radius**2 * math.sin(2 * math.pi / c.edges)
+
+
+def make_worlds(params: Params, gc: GeneralConfig, rng: np.random.Generator, n_envs: int) -> list[World]:
+    """The named regions with a fleet size drawn from ``fleet`` each, then the generated lakes."""
+    worlds = []
+    for name in gc.regions:
+        region = make_region(name, params.regions[name], params.world.region_area)
+        worlds.append((region, int(rng.choice(gc.fleet))))
+    for _ in range(gc.lakes):
+        spec = draw_spec(rng, n_range=gc.lake_fleet, ratio_range=gc.lake_ratio)
+        worlds.append((lake_region(spec, coverage_area(params)), spec.n_agents))
+    return [World(region, n, world_env(params, gc, region, n, n_envs, np.random.SeedSequence(int(rng.integers(2**31)))))
+            for region, n in worlds]
+
+
+class FleetReplay:
+    """A replay memory of one-step transitions of fleets up to ``n_max`` buoys, padded and masked."""
+
+    def __init__(self, capacity: int, n_max: int, obs_dim: int):
+        shapes = {"obs": (obs_dim,), "act": (2,), "rew": (), "next_obs": (obs_dim,), "pos": (2,), "next_pos": (2,)}
+        self.data = {k: torch.zeros((capacity, n_max, *s)) for k, s in shapes.items()}
+        self.live = torch.zeros((capacity, n_max), dtype=torch.bool)
+        self.next_live = torch.zeros((capacity, n_max), dtype=torch.bool)
+        self.capacity, self.size, self.ptr = capacity, 0, 0
+
+    def add(self, live: np.ndarray, next_live: np.ndarray, **arrays: np.ndarray) -> None:
+        """E transitions of one fleet of N ≤ n_max buoys: arrays [E, N, ...], masks [E, N]."""
+        e, n = live.shape
+        rows = (self.ptr + np.arange(e)) % self.capacity
+        for key, value in arrays.items():
+            self.data[key][rows] = 0.0
+            self.data[key][rows, :n] = torch.as_tensor(value, dtype=torch.float32)
+        self.live[rows], self.next_live[rows] = False, False
+        self.live[rows, :n], self.next_live[rows, :n] = torch.as_tensor(live), torch.as_tensor(next_live)
+        self.ptr = (self.ptr + e) % self.capacity
+        self.size = min(self.size + e, self.capacity)
+
+    def sample(self, rng: np.random.Generator, batch: int, gamma: float) -> FleetBatch:
+        idx = torch.as_tensor(rng.integers(0, self.size, batch))
+        return FleetBatch(**{k: v[idx] for k, v in self.data.items()}, live=self.live[idx],
+                          next_live=self.next_live[idx], disc=torch.full((batch,), gamma))
+
+
+def noise_sigma(gc: GeneralConfig, progress: float) -> float:
+    """σ falls linearly from ``noise_start`` to ``noise_end`` over the first ``noise_decay`` of training."""
+    return gc.noise_end + (gc.noise_start - gc.noise_end) * max(0.0, 1.0 - progress / max(gc.noise_decay, 1e-9))
+
+
+class GeneralTrainer:
+    """One seed of the general policy (module docstring). ``run`` trains and returns the run's summary."""
+
+    def __init__(self, params: Params, seed: int, out: str | Path, progress: bool = True,
+                 config: GeneralConfig | None = None):
+        self.params, self.gc, self.seed, self.out = params, config or params.general, seed, Path(out)
+        self.progress = progress
+        streams = np.random.SeedSequence(seed).spawn(5)  # worlds, events, noise, sampling, validation
+        self.rng_events = np.random.default_rng(streams[1])
+        self.noise = torch.Generator().manual_seed(int(streams[2].generate_state(1)[0]))
+        self.rng_sample = np.random.default_rng(streams[3])
+        self.worlds = make_worlds(params, self.gc, np.random.default_rng(streams[0]), self.gc.n_envs)
+        self.validation = self.validation_worlds(np.random.default_rng(streams[4]))
+        obs_dim = len(observation_columns("local", self.gc.sensors))
+        self.agent = SharedMADDPG(obs_dim, 2, self.gc.learner, seed=seed)
+        self.replay = FleetReplay(self.gc.buffer_size, max(w.n_agents for w in self.worlds), obs_dim)
+        self.rows: list[list] = []
+        self.best: dict | None = None
+        self.pending = 0.0
+
+    def validation_worlds(self, rng: np.random.Generator) -> list[tuple[World, str, int]]:
+        """Fixed validation starts (world, start, seed): every named region from the corner patch, every world
+        scattered; 4 episodes each."""
+        out = []
+        for w in self.worlds:
+            env = world_env(self.params, self.gc, w.region, w.n_agents, 4, 0, reward=False)
+            starts = ("corner", "random") if w.region.name in self.gc.regions else ("random",)
+            out += [(World(w.region, w.n_agents, env), s, int(rng.integers(2**31))) for s in starts]
+        return out
+
+    def run(self) -> dict:
+        gc = self.gc
+        batches = gc.episodes // gc.n_envs
+        t0, c0 = time.perf_counter(), time.process_time()
+        for batch in tqdm(range(batches), disable=not self.progress, unit="batch"):
+            sigma = noise_sigma(gc, batch / batches)
+            world = self.worlds[batch % len(self.worlds)]
+            row = self.play(world, sigma)
+            score = self.validate() if (batch + 1) % len(self.worlds) == 0 or batch == batches - 1 else math.nan
+            self.rows.append([batch, (batch + 1) * gc.n_envs, world.region.name, world.n_agents, *row, sigma, score])
+        return self.finish(time.perf_counter() - t0, time.process_time() - c0)
+
+    def play(self, world: World, sigma: float) -> list:
+        """One batch of E episodes in ``world``: its events drawn, every step stored, every due update made.
+        → [start, lost, current speed, final coverage, critic loss, |Q|]."""
+        gc, env, rng = self.gc, world.env, self.rng_events
+        start = "random" if rng.uniform() < gc.random_starts else "corner"
+        lose = int(rng.integers(1, max(2, int(gc.lose_fraction * world.n_agents) + 1))) \
+            if rng.uniform() < gc.lose_prob and world.n_agents > 2 else 0
+        current = random_current(rng, env.n_envs, world.region.polygon, gc.current_speed) \
+            if rng.uniform() < gc.current_prob else None
+        env.set_current(current)
+        obs = env.reset(start=start)
+        losses, q_abs = [], []
+        for t in range(gc.episode_length):
+            if lose and t == gc.episode_length // 2:
+                env.lose(lose, rng)
+                obs = env.observe()
+            live = np.ones((env.n_envs, world.n_agents), bool) if env.alive is None else env.alive.copy()
+            pos = env.pos.copy()
+            act = self.agent.act(obs, sigma, self.noise).numpy()
+            step = env.step(act)
+            self.replay.add(live, live, obs=obs, act=act, rew=step.reward * gc.reward_scale, next_obs=step.obs,
+                            pos=pos, next_pos=env.pos)
+            obs = step.obs
+            for stats in self.learn(env.n_envs):
+                losses.append(stats["critic_loss"])
+                q_abs.append(stats["q_abs"])
+        coverage = float(np.mean(step.union_area / world.region.polygon.area))
+        return [start, lose, 0.0 if current is None else current.max_speed(), coverage,
+                float(np.mean(losses)) if losses else math.nan, float(np.mean(q_abs)) if q_abs else math.nan]
+
+    def learn(self, transitions: int):
+        """The updates due after ``transitions`` more: one per ``update_every`` once the memory holds
+        ``learning_starts``."""
+        gc = self.gc
+        if self.replay.size < gc.learning_starts:
+            return
+        self.pending += transitions / gc.update_every
+        while self.pending >= 1.0:
+            self.pending -= 1.0
+            yield self.agent.update(self.replay.sample(self.rng_sample, gc.batch_size, gc.gamma))
+
+    @torch.no_grad()
+    def validate(self) -> float:
+        """Mean final coverage of the deterministic policy over the validation starts; keeps the best actor."""
+        scores = []
+        for world, start, seed in self.validation:
+            env = world.env
+            obs = env.reset(seed=seed, start=start)  # the same starts every time
+            for _ in range(self.gc.episode_length):
+                obs = env.step(self.agent.actor(torch.as_tensor(obs))[0].numpy()).obs
+            scores.append(float(env.coverage_fraction().mean()))
+        score = float(np.mean(scores))
+        if self.best is None or score > self.best["validation"]:
+            state = {k: v.clone() for k, v in self.agent.actor.state_dict().items()}
+            self.best = {"validation": score, "episodes": (len(self.rows) + 1) * self.gc.n_envs, "actor": state}
+        return score
+
+    def finish(self, wall: float, cpu: float) -> dict:
+        gc = self.gc
+        artifacts.torch_save(self.out / "actor.pt", {
+            "actor": self.best["actor"], "observation": "local", "sensors": to_dict(gc.sensors),
+            "columns": observation_columns("local", gc.sensors), "hidden": gc.learner.hidden,
+            "selected_episode": self.best["episodes"], "seed": self.seed})
+        artifacts.write_csv(self.out / "curve.csv.gz", CURVE_COLUMNS, self.rows)
+        summary = {"status": "finished", "seed": self.seed, "general": to_dict(gc),
+                   "worlds": [{"region": w.region.name, "n_agents": w.n_agents} for w in self.worlds],
+                   "selected_episode": self.best["episodes"], "selected_validation_coverage": self.best["validation"],
+                   "wall_seconds": round(wall, 2), "cpu_seconds": round(cpu, 2)}
+        artifacts.write_json(self.out / "run.json", summary)
+        return summary
