@@ -325,19 +325,8 @@ def allocator_comparison(episodes: int) -> dict[tuple[str, int], dict]:
     return out
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--episodes", type=int, default=1000, help="episodes of the timed training runs")
-    parser.add_argument("--full", action="store_true", help="also train the full 10,000-episode CR run")
-    parser.add_argument("--allocator-probe", choices=("default", "held"), help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
-    if args.allocator_probe:
-        allocator_probe(args.allocator_probe, args.episodes)
-        return 0
-    hold_freed_memory()  # as the pipeline's training processes (section 4 measures it)
-    params = load_params("params.yaml")
-    square = make_region("square", params.regions["square"], params.world.region_area)
-
+def machine_section(params) -> dict[str, float]:
+    """Section 0; → each configuration's matmul floor of an update, in seconds."""
     print("== 0. this machine (one thread) ==")
     gflops = machine_gemm_gflops()
     print(f"matmul throughput {gflops:.1f} GFLOPS; per-run times below scale with it across machines")
@@ -350,15 +339,18 @@ def main(argv=None) -> int:
         parts = update_breakdown(params, config)
         print(f"{config}: where an update's time goes (every aten call timed, so the total runs slower): " + "; ".join(
             f"{k} {ms:.2f} ms" + (f" at {gf:.1f} GFLOPS" if gf == gf else "") for k, (ms, gf) in sorted(parts.items())))
+    return floors
 
+
+def training_section(params, square, floors: dict[str, float], episodes: int) -> None:
     seeds = 3  # a stack of three seeds: more gives `tuned` nothing per run
     print(f"== 1. training time per run, square (one thread): a run alone, and {seeds} seeds stacked in one "
           "process as the pipeline trains them ==")
     splits = {}
     for config, target in (("paper", 90), ("tuned", 180)):
         for method in ("cr", "sw"):
-            alone = training_split(params, square, config, method, args.episodes)
-            stacked = training_split(params, square, config, method, args.episodes, runs=seeds)
+            alone = training_split(params, square, config, method, episodes)
+            stacked = training_split(params, square, config, method, episodes, runs=seeds)
             splits[(config, method)] = stacked[:2]
             for label, (env_s, per_update, upd_1000, full) in (("alone", alone), (f"{seeds} stacked", stacked)):
                 print(f"{config} {method.upper()}-MARL, {label:9s}: per 1,000 episodes: environment+geometry+acting "
@@ -367,13 +359,14 @@ def main(argv=None) -> int:
                       f"is {floors[config] / per_update:.0%} of an update's time")
             print(f"{config} {method.upper()}-MARL: stacking {seeds} seeds takes {stacked[3] / alone[3]:.2f}x the "
                   "time per run of a run alone")
-
     runs, projected, at_floor = train_stage_projection(params, splits, floors)
     print(f"pipeline `train` stage, {runs} runs, two processes at a time: projected {projected / 60:.0f} min at "
           f"these speeds (two processes share the memory bus, so the stage runs a little longer: README has the "
           f"measured time); {at_floor / 60:.0f} min if every update ran at its matmul floor. The pipeline's budget "
           f"is 45 min for the whole `dvc repro`, of which `evaluate`, `figures` and `report` take a few minutes")
 
+
+def update_section(params) -> None:
     print("== 2. one MADDPG update of 9 agents ==")
     for config in CONFIGS:
         t = update_times(params, config)
@@ -382,6 +375,8 @@ def main(argv=None) -> int:
             f"{k} {v * 1e3:.1f} ms" + ("" if k == "batched" else f" ({v / b:.2f}x the batched time)")
             for k, v in t.items()))
 
+
+def environment_section(params, square) -> None:
     print("== 3. environment throughput, random actions, agent-steps per second ==")
     ref = mpe2_throughput()
     bedok = make_region("bedok", params.regions["bedok"], params.world.region_area)
@@ -395,8 +390,10 @@ def main(argv=None) -> int:
             line += f"; VMAS simple_spread {v:9.0f}, ratio {ours / v:.2f} (walled {walled / v:.2f})"
         print(line)
 
+
+def allocator_section(episodes: int) -> None:
     print("== 4. allocator of the training processes: paper CR-MARL, 3 seeds stacked, fresh processes ==")
-    probes = allocator_comparison(args.episodes)
+    probes = allocator_comparison(episodes)
     for side_by_side in (1, 2):
         default, held = probes[("default", side_by_side)], probes[("held", side_by_side)]
         where = "alone" if side_by_side == 1 else "two processes side by side"
@@ -405,28 +402,64 @@ def main(argv=None) -> int:
               f"{held['per_update'] * 1e3:.1f} ms ({held['faults']:,} faults, {held['system_seconds']:.1f} s); "
               f"ratio {held['per_update'] / default['per_update']:.2f}")
 
+
+def benchmarl_section() -> None:
     print("== 5. BenchMARL 1.5.2 MADDPG on VMAS simple_spread beside the project, paper schedule, fresh processes "
           "alternating, median of 3 ==")
-    if benchmarl_bench.available():
-        sides = benchmarl_bench.side_by_side()
-        ours, theirs = sides["project"], sides["benchmarl"]
-        print(f"end to end, s per 1,000 episodes: project {ours['per_1000_episodes']:.1f}, BenchMARL "
-              f"{theirs['per_1000_episodes']:.1f}, ratio {theirs['per_1000_episodes'] / ours['per_1000_episodes']:.2f}"
-              f" (per update inside the runs: {ours['per_update'] * 1e3:.1f} vs {theirs['per_update'] * 1e3:.1f} ms)")
-        print(f"one update at identical shapes (9 agents, observation width {benchmarl_bench.OBS_WIDTH}, batch "
-              f"{benchmarl_bench.BATCH}): project {ours['update_alone'] * 1e3:.1f} ms, BenchMARL "
-              f"{theirs['update_alone'] * 1e3:.1f} ms, ratio {theirs['update_alone'] / ours['update_alone']:.2f}")
-    else:
+    if not benchmarl_bench.available():
         print("BenchMARL is not installed (pip install .[bench]; make bench installs it)")
+        return
+    sides = benchmarl_bench.side_by_side()
+    ours, theirs = sides["project"], sides["benchmarl"]
+    print(f"end to end, s per 1,000 episodes: project {ours['per_1000_episodes']:.1f}, BenchMARL "
+          f"{theirs['per_1000_episodes']:.1f}, ratio {theirs['per_1000_episodes'] / ours['per_1000_episodes']:.2f}"
+          f" (per update inside the runs: {ours['per_update'] * 1e3:.1f} vs {theirs['per_update'] * 1e3:.1f} ms)")
+    print(f"one update at identical shapes (9 agents, observation width {benchmarl_bench.OBS_WIDTH}, batch "
+          f"{benchmarl_bench.BATCH}): project {ours['update_alone'] * 1e3:.1f} ms, BenchMARL "
+          f"{theirs['update_alone'] * 1e3:.1f} ms, ratio {theirs['update_alone'] / ours['update_alone']:.2f}")
 
+
+def full_run(params, square) -> None:
+    print("== full run: paper CR-MARL, square, 10,000 episodes ==")
+    rc = run_config(params, "paper", "cr")
+    with tempfile.TemporaryDirectory() as tmp:
+        tr = Trainer(rc, square, params.train.episodes, 0, Path(tmp) / "run", progress=False)
+        (summary,) = tr.run()
+    print(f"wall {summary['wall_seconds']:.1f} s (updates {summary['update_seconds']:.1f} s, "
+          f"{summary['updates']} updates)")
+
+
+SECTIONS = (0, 1, 2, 3, 4, 5)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--episodes", type=int, default=1000, help="episodes of the timed training runs")
+    parser.add_argument("--only", type=int, nargs="+", choices=SECTIONS, default=SECTIONS,
+                        help="the sections to run (default: all; 1 needs 0's floors and runs it too)")
+    parser.add_argument("--full", action="store_true", help="also train the full 10,000-episode CR run")
+    parser.add_argument("--allocator-probe", choices=("default", "held"), help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.allocator_probe:
+        allocator_probe(args.allocator_probe, args.episodes)
+        return 0
+    hold_freed_memory()  # as the pipeline's training processes (section 4 measures it)
+    params = load_params("params.yaml")
+    square = make_region("square", params.regions["square"], params.world.region_area)
+    only = set(args.only)
+    floors = machine_section(params) if only & {0, 1} else {}
+    if 1 in only:
+        training_section(params, square, floors, args.episodes)
+    if 2 in only:
+        update_section(params)
+    if 3 in only:
+        environment_section(params, square)
+    if 4 in only:
+        allocator_section(args.episodes)
+    if 5 in only:
+        benchmarl_section()
     if args.full:
-        print("== full run: paper CR-MARL, square, 10,000 episodes ==")
-        rc = run_config(params, "paper", "cr")
-        with tempfile.TemporaryDirectory() as tmp:
-            tr = Trainer(rc, square, params.train.episodes, 0, Path(tmp) / "run", progress=False)
-            (summary,) = tr.run()
-        print(f"wall {summary['wall_seconds']:.1f} s (updates {summary['update_seconds']:.1f} s, "
-              f"{summary['updates']} updates)")
+        full_run(params, square)
     return 0
 
 

@@ -96,8 +96,8 @@ def raster_counts(geo, xy, area):
 
 @pytest.mark.parametrize("name", REGIONS)
 def test_raster_kernel_counts_every_shared_cell(name, regions, geometries):
-    """The kernel visits only the part of each stamp that other stamps' boxes reach: its counts must equal
-    those of visiting every cell of every stamp."""
+    """The kernel sweeps runs of rows, not cells: its union and each stamp's shared cells must equal those of
+    counting every cell of every stamp."""
     region = regions[name].polygon
     xy = random_configs(region, np.random.default_rng(4), n_env=24)
     geo = geometries[name]

@@ -428,7 +428,7 @@ class GeneralConfig:
 
     regions: tuple[str, ...]  # named regions of ``regions`` trained on, with ``fleet`` buoys each
     fleet: tuple[int, ...]  # N of a named region's world, one drawn per world
-    lakes: int  # generated training lakes (``lakes.draw_spec`` from the run's seed)
+    lakes: int  # generated training lakes (``lakes.training``: the same for every seed)
     lake_fleet: tuple[int, int]  # N range of a generated lake
     lake_ratio: tuple[float, float]  # N·A(Cov)/A(Reg) range of a generated lake
     random_starts: float  # share of batches released scattered over the water (the rest in the corner patch)

@@ -1,7 +1,7 @@
 """Training one policy for every lake: the shared actor and pooled critic (``shared_maddpg``) on many worlds.
 
 A world is a region and a fleet size: the named regions of ``general.regions`` and ``general.lakes`` generated
-lakes (``lakes.draw_spec`` from the run's seed, so never a held-out lake), each with N buoys behind the shore
+lakes (``lakes.training``, a stream apart from the held-out lakes'), each with N buoys behind the shore
 wall, observing only their local sensors (``observation: local``), rewarded by CR's eq. (5)-(6) with the
 difference credit. Each batch of E episodes plays in one world, the worlds in turn; a batch may start scattered
 over the water instead of in the corner patch, lose up to a third of its buoys half-way, or drift in a current.
@@ -28,7 +28,7 @@ from . import artifacts
 from .config import GeneralConfig, Params, region_world, to_dict
 from .currents import random_current
 from .env import CoverageEnv, observation_columns
-from .lakes import draw_spec, lake_region
+from .lakes import lake_region, training
 from .regions import Region, make_region
 from .shared_maddpg import FleetBatch, SharedMADDPG
 
@@ -61,13 +61,12 @@ def coverage_area(params: Params) -> float:
 
 
 def make_worlds(params: Params, gc: GeneralConfig, rng: np.random.Generator, n_envs: int) -> list[World]:
-    """The named regions with a fleet size drawn from ``fleet`` each, then the generated lakes."""
+    """The named regions with a fleet size drawn from ``fleet`` each (from ``rng``), then the training lakes."""
     worlds = []
     for name in gc.regions:
         region = make_region(name, params.regions[name], params.world.region_area)
         worlds.append((region, int(rng.choice(gc.fleet))))
-    for _ in range(gc.lakes):
-        spec = draw_spec(rng, n_range=gc.lake_fleet, ratio_range=gc.lake_ratio)
+    for spec in training(gc.lakes, n_range=gc.lake_fleet, ratio_range=gc.lake_ratio):
         worlds.append((lake_region(spec, coverage_area(params)), spec.n_agents))
     return [World(region, n, world_env(params, gc, region, n, n_envs, np.random.SeedSequence(int(rng.integers(2**31)))))
             for region, n in worlds]

@@ -248,33 +248,25 @@ class CoverageGeometry:
 
 
 @njit(cache=True)
-def _insert(sorted_values, count, value):  # pragma: no cover
-    """Insert ``value`` into the sorted first ``count`` entries of ``sorted_values``."""
-    j = count
-    while j > 0 and sorted_values[j - 1] > value:
-        sorted_values[j] = sorted_values[j - 1]
-        j -= 1
-    sorted_values[j] = value
-
-
-@njit(cache=True)
 def _overlap_runs(env, cell, k, box, lo, hi, reach, prefix, marginal):  # pragma: no cover
-    """Raster kernel of ``union_area``: per stamp, (its cells inside the region that an earlier stamp of its
-    environment already covers, its cells inside the region covered twice or more, counted only when
-    ``marginal``). The sum of the first over an environment is the union's excess over the sum of its stamps.
+    """Raster kernel of ``union_area``: per stamp, (its environment's excess of the stamps' cells over their
+    union, on the environment's first stamp; its cells covered twice or more, counted only when ``marginal``),
+    cells inside the region only.
 
     A stamp is agent ``cell`` [M, 2]'s stencil ``k`` [M]: rows ``lo[k, c] .. hi[k, c]`` of column c, inside its
     bounding box ``box`` [M, 4] (x0, x1, y0, y1, inclusive, in cells); stamps of one environment are consecutive
     (``env`` [M]). K is convex, so a stamp meets each column in one run of rows, and the kernel works on runs, not
-    cells: in each column, the runs' ends cut it into pieces, each covered by the same stamps throughout, whose
-    cells in the region ``prefix`` [nx, ny + 1] counts (its row r: the column's region cells below row r).
+    cells: in each column a sweep over the runs' ends in row order keeps how many stamps cover the current piece
+    and the sum of their numbers (the stamp itself while only one does); ``prefix`` [nx, ny + 1] counts a piece's
+    cells in the region (row r: the column's region cells below row r). A piece covered c ≥ 1 times adds c − 1
+    per cell to the excess; a stamp's cells covered twice or more are its cells less those it covers alone.
     Returns out [M, 2]."""
     m = len(cell)
     out = np.zeros((m, 2))
-    first = np.empty(m, np.int64)
-    last = np.empty(m, np.int64)
-    who = np.empty(m, np.int64)
-    cuts = np.empty(2 * m, np.int64)
+    alone = np.zeros(m)  # cells a stamp covers by itself, in the columns it shares
+    at = np.empty(2 * m, np.int64)  # the sweep's events: row, +1/−1, stamp
+    step = np.empty(2 * m, np.int64)
+    owner = np.empty(2 * m, np.int64)
     start = 0
     while start < m:
         stop = start
@@ -283,41 +275,49 @@ def _overlap_runs(env, cell, k, box, lo, hi, reach, prefix, marginal):  # pragma
         x0, x1 = box[start, 0], box[start, 1]
         for i in range(start + 1, stop):
             x0, x1 = min(x0, box[i, 0]), max(x1, box[i, 1])
+        excess = 0.0
         for x in range(x0, x1 + 1):
-            runs = 0
-            for i in range(start, stop):  # in stamp order, so who[] lists the earliest stamp first
+            events = 0
+            for i in range(start, stop):
                 if box[i, 0] <= x <= box[i, 1]:
                     col = x - cell[i, 0] + reach
                     if lo[k[i], col] <= hi[k[i], col]:
-                        first[runs], last[runs] = cell[i, 1] + lo[k[i], col], cell[i, 1] + hi[k[i], col] + 1
-                        who[runs] = i
-                        runs += 1
-            if runs < 2:
+                        events = _insert(at, step, owner, events, cell[i, 1] + lo[k[i], col], 1, i)
+                        events = _insert(at, step, owner, events, cell[i, 1] + hi[k[i], col] + 1, -1, i)
+            if events < 4:  # one run: nothing shared in this column
                 continue
-            for r in range(runs):  # the pieces' ends, sorted (insertion: a handful of runs)
-                _insert(cuts, 2 * r, first[r])
-                _insert(cuts, 2 * r + 1, last[r])
-            for c in range(2 * runs - 1):
-                a, b = cuts[c], cuts[c + 1]  # rows a .. b − 1
-                if a == b:
-                    continue
-                cells = prefix[x, b] - prefix[x, a]
-                if cells == 0:
-                    continue
-                seen, earliest = 0, -1
-                for r in range(runs):
-                    if first[r] <= a and b <= last[r]:
-                        seen += 1
-                        if seen == 2 and marginal:
-                            out[earliest, 1] += cells
-                        if seen >= 2:
-                            out[who[r], 0] += cells
-                            if marginal:
-                                out[who[r], 1] += cells
-                        else:
-                            earliest = who[r]
+            count, ids, row = 0, 0, at[0]
+            for e in range(events):
+                if at[e] > row and count > 0:
+                    cells = prefix[x, at[e]] - prefix[x, row]
+                    excess += (count - 1) * cells
+                    if marginal and count == 1:
+                        alone[ids] += cells
+                row = at[e]
+                count += step[e]
+                ids += step[e] * owner[e]
+            if marginal:
+                for e in range(events):
+                    if step[e] > 0:  # a run's cells in the region, added to its stamp's cells covered twice
+                        i = owner[e]
+                        col = x - cell[i, 0] + reach
+                        out[i, 1] += prefix[x, cell[i, 1] + hi[k[i], col] + 1] - prefix[x, at[e]]
+        out[start, 0] = excess
         start = stop
+    if marginal:
+        out[:, 1] -= alone
     return out
+
+
+@njit(cache=True)
+def _insert(at, step, owner, count, row, delta, stamp):  # pragma: no cover
+    """Insert the event (row, delta, stamp) into the first ``count`` events, kept in row order. → count + 1."""
+    j = count
+    while j > 0 and at[j - 1] > row:
+        at[j], step[j], owner[j] = at[j - 1], step[j - 1], owner[j - 1]
+        j -= 1
+    at[j], step[j], owner[j] = row, delta, stamp
+    return count + 1
 
 
 TABLE_VERSION = 1

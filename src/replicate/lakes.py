@@ -5,8 +5,8 @@ shore outwards) and islands (small blobs cut out well inside), scaled so that N 
 ``ratio`` of its area: N·A(Cov)/A(Reg) from about 0.5 (more water than the fleet can cover) to 1.2 (more fleet
 than water). Every draw comes from the ``numpy.random.Generator`` of the lake's seed, so a seed is a lake.
 
-``held_out`` is the evaluation suite's fixed set of lakes; its seeds come from a stream of their own
-(``HELD_OUT_ENTROPY``), apart from the seeds a training run draws, so no held-out lake is trained on.
+``held_out`` is the evaluation suite's fixed set of lakes and ``training`` the training set; each comes from a
+seed stream of its own (``HELD_OUT_ENTROPY``, ``TRAINING_ENTROPY``), so no held-out lake is trained on.
 """
 
 from __future__ import annotations
@@ -21,7 +21,8 @@ from shapely.geometry.polygon import orient
 
 from .regions import Region
 
-HELD_OUT_ENTROPY = 20_261_018  # the held-out lakes' seed stream; training draws from its run's own seed
+HELD_OUT_ENTROPY = 20_261_018  # the held-out lakes' seed stream
+TRAINING_ENTROPY = 7_310_442  # the training lakes' seed stream: the same lakes for every seed of a training
 VERTICES = 96  # of a blob's outline
 
 
@@ -125,4 +126,12 @@ def lake_region(spec: LakeSpec, coverage_area: float) -> Region:
 def held_out(count: int = 20, **draw) -> list[LakeSpec]:
     """The evaluation suite's generated lakes: ``count`` recipes from the held-out stream, the same every time."""
     rng = np.random.default_rng(np.random.SeedSequence(HELD_OUT_ENTROPY))
+    return [draw_spec(rng, **draw) for _ in range(count)]
+
+
+def training(count: int, **draw) -> list[LakeSpec]:
+    """The training lakes: ``count`` recipes from the training stream. Every seed of a training sees the same
+    lakes (a fixed training distribution, whose coverage tables are built once and cached); the seeds differ in
+    the networks' weights, the noise, the events and the sampling."""
+    rng = np.random.default_rng(np.random.SeedSequence(TRAINING_ENTROPY))
     return [draw_spec(rng, **draw) for _ in range(count)]
