@@ -35,6 +35,14 @@ def test_the_held_out_lakes_are_fixed_and_lake_like():
     assert sum(len(p.interiors) for p in shapes) >= 5, "some lakes have islands"
 
 
+def test_many_recipes_make_valid_lakes():
+    """200 training recipes, arms crossing arms included: every one a valid single polygon of its area."""
+    for spec in lakes.training(200):
+        poly = lakes.generate(spec, COVERAGE)
+        assert poly.is_valid and isinstance(poly, shapely.Polygon) and poly.area > 0
+        assert abs(spec.n_agents * COVERAGE / poly.area - spec.ratio) < 1e-9
+
+
 def test_training_lakes_never_meet_the_held_out_lakes():
     held = {s.seed for s in lakes.held_out(20)}
     assert not held & {s.seed for s in lakes.training(500)}

@@ -61,11 +61,12 @@ def blob(rng: np.random.Generator, radius: float, center=(0.0, 0.0), harmonics: 
 def arm(rng: np.random.Generator, body: Polygon, size: float) -> Polygon:
     """A bay reaching out of ``body``: a random walk of 3-5 legs from a point of its shore, heading outwards
     with turns of up to 40°, 1-2.5 × ``size`` long, buffered to 0.5-0.9 × ``size`` wide (round ends)."""
-    c = np.asarray(body.centroid.coords[0])
+    c = np.asarray(body.representative_point().coords[0])  # inside the water, so the ray meets its shore
     heading = rng.uniform(0, 2 * np.pi)
-    far = c + 10 * size * np.array([np.cos(heading), np.sin(heading)])
-    start = np.asarray(LineString([c, far]).intersection(body.exterior).coords[0]) - 0.2 * size * np.array(
-        [np.cos(heading), np.sin(heading)])
+    direction = np.array([np.cos(heading), np.sin(heading)])
+    crossings = shapely.get_coordinates(LineString([c, c + 100 * size * direction]).intersection(body.exterior))
+    shore = crossings[np.argmax(crossings @ direction)]  # the outermost crossing along the heading
+    start = shore - 0.2 * size * direction
     legs = int(rng.integers(3, 6))
     length = rng.uniform(1.0, 2.5) * size / legs
     points = [start]
