@@ -59,3 +59,33 @@ def test_the_replay_pads_small_fleets():
     b = replay.sample(np.random.default_rng(0), 5, 0.9)
     assert b.obs.shape == (5, 4, 3) and not b.live[:, 3].any() and b.live[:, :3].all()
     assert (b.rew[:, 3] == 0).all() and torch.equal(b.disc, torch.full((5,), 0.9))
+
+
+@pytest.mark.slow
+def test_a_general_policy_runs_zero_shot_on_a_lake_the_repo_does_not_ship(two_runs, tmp_path):
+    """`replicate export` of a general run, then `replicate evaluate --policy` on an L-shaped lake with an island
+    given as GeoJSON in longitude/latitude, scattered starts, 9 and then 20 buoys: coverage with its interval,
+    the baselines under the same rules, and no buoy ever outside the water."""
+    import geopandas as gpd
+    from shapely.geometry import Polygon
+
+    from .test_training import cli
+
+    out, _ = two_runs
+    assert cli("export", str(out / "run0"), "--out", str(tmp_path / "general.pt")).wait(timeout=300) == 0
+    deg = 1e-4  # ~11 m
+    lake = Polygon([(103.9, 1.33), (103.9 + 6 * deg, 1.33), (103.9 + 6 * deg, 1.33 + 2 * deg),
+                    (103.9 + 2 * deg, 1.33 + 2 * deg), (103.9 + 2 * deg, 1.33 + 6 * deg), (103.9, 1.33 + 6 * deg)],
+                   holes=[[(103.9 + 0.6 * deg, 1.33 + 0.6 * deg), (103.9 + 1.2 * deg, 1.33 + 0.6 * deg),
+                           (103.9 + 1.2 * deg, 1.33 + 1.2 * deg), (103.9 + 0.6 * deg, 1.33 + 1.2 * deg)]])
+    gpd.GeoDataFrame({"name": ["l lake"]}, geometry=[lake], crs="EPSG:4326").to_file(tmp_path / "lake.geojson")
+    for n in (9, 20):
+        report = tmp_path / f"x{n}.json"
+        proc = cli("--set", "evaluate.episodes=8", "evaluate", "--policy", str(tmp_path / "general.pt"), "--region",
+                   str(tmp_path / "lake.geojson"), "--starts", "random", "--n-agents", str(n), "--out", str(report))
+        assert proc.wait(timeout=600) == 0
+        result = json.loads(report.read_text())
+        cov = result["coverage"]
+        assert 0 <= cov["lo"] <= cov["mean"] <= cov["hi"] <= 1 and cov["n"] == 8 and result["n_agents"] == n
+        assert set(result["baselines"]) == {"naive", "lloyd"} and result["max_outside_m"] == 0.0
+        assert result["ratio_to_lloyd"] == pytest.approx(cov["mean"] / result["baselines"]["lloyd"]["coverage"]["mean"])

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -174,6 +175,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from .evaluate import evaluate_baseline, evaluate_run
 
     params = load_params(args.params, overrides(args.set))
+    if args.policy is not None:
+        return evaluate_general(args, params)
     if (args.run is None) == (args.baseline is None):
         raise ConfigError("give exactly one of a run folder (`replicate evaluate RUN`) or --baseline NAME")
     if args.baseline is not None and not args.region:
@@ -191,6 +194,42 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     cov = result["coverage"]
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes "
           f"of this trained policy; a training seed of its own can land outside it); wrote {out}")
+    return 0
+
+
+def evaluate_general(args: argparse.Namespace, params: Params) -> int:
+    """``evaluate --policy``: a general policy on ``--region`` with its fleet, starts and events."""
+    from .evaluate import evaluate_policy
+
+    if args.run is not None or args.baseline is not None:
+        raise ConfigError("--policy evaluates a general policy; give no run folder or --baseline with it")
+    if not args.region:
+        raise ConfigError("--policy needs --region (square, rectangle, bedok or a vector file)")
+    if not Path(args.policy).is_file():
+        raise ConfigError(f"--policy {args.policy}: no such file; export a general run with `replicate export`")
+    n = params.world.n_agents if args.n_agents is None else args.n_agents
+    if not 2 <= n <= MAX_AGENTS:
+        raise ConfigError(f"--n-agents must be from 2 to {MAX_AGENTS}, got {n}")
+    current = None
+    if args.current is not None:
+        try:
+            current = tuple(float(v) for v in args.current.split(","))
+        except ValueError:
+            current = ()
+        if len(current) != 2 or not all(math.isfinite(v) for v in current):
+            raise ConfigError(f"--current expects two numbers U,V (simulation m/s), got {args.current!r}")
+    area = params.world.region_area * n / params.world.n_agents  # the paper's density: 9 buoys on 9 m²
+    if args.region in params.regions:
+        region = make_region(args.region, params.regions[args.region], area)
+    else:
+        region = region_from_file(Path(args.region), area=area)
+    out = claim_out_file(Path(args.out or f"policy-{region.name}-n{n}.json"), args.force)
+    result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current)
+    artifacts.write_json(out, result)
+    cov, lloyd = result["coverage"], result["baselines"]["lloyd"]["coverage"]
+    print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes), "
+          f"Lloyd {lloyd['mean']:.3f} (hand-set gains), ratio {result['ratio_to_lloyd']:.3f}; furthest outside the "
+          f"water {result['max_outside_m']:.3g} m; wrote {out}")
     return 0
 
 
@@ -268,11 +307,16 @@ def cover_into(args: argparse.Namespace, params: Params, out: Path, tempfile) ->
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from .export import export_policy
+    from .export import export_general, export_policy
 
     params = load_params(args.params, overrides(args.set))
     if args.run is None:
         raise ConfigError("export needs a run folder: `replicate export RUN`")
+    if (Path(args.run) / "actor.pt").exists():  # a general run: one shared actor for any fleet and lake
+        out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force)
+        export_general(Path(args.run) / "actor.pt", out, params.world.sensitivity)
+        print(f"exported the general policy (any fleet, local sensors) to {out}")
+        return 0
     region = run_region(args.run, params, args.region)
     out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force)
     meta = export_policy(Path(args.run) / "actors.pt", region, out, params.world.sensitivity)
@@ -415,6 +459,14 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", default=None,
                    help="output JSON (default: RUN/metrics.json, or metrics/baseline-NAME-REGION.json)")
     e.add_argument("--force", action="store_true", help="replace --out if it exists")
+    g = e.add_argument_group("a general policy, zero-shot on any region (instead of a run)")
+    g.add_argument("--policy", default=None, help="a general policy file (`replicate export` of a general run)")
+    g.add_argument("--n-agents", type=int, default=None, help="buoys (default: world.n_agents, 9); the region is "
+                   "scaled to the paper's density, 1 m² per buoy")
+    g.add_argument("--starts", choices=("corner", "random"), default="corner",
+                   help="release in the corner patch (default) or scattered over the water")
+    g.add_argument("--lose", type=int, default=0, help="buoys lost half-way (default 0)")
+    g.add_argument("--current", default=None, help="a uniform drift U,V in simulation m/s (top speed 2)")
     e.set_defaults(func=cmd_evaluate)
 
     c = sub.add_parser("cover", help="train CR-MARL on any waterbody and compare with the Lloyd layout", **verb)

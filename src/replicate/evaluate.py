@@ -213,3 +213,53 @@ def evaluate_baseline(name: str, params: Params, region: Region, config: str = "
     out.update(kind="baseline", baseline=name, region=region.name, steps=steps, config=config)
     out["ceiling"] = metrics.coverage_ceiling(region.area, rc.world.n_agents, rc.coverage.radius, rc.coverage.edges)
     return out
+
+
+def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
+                    lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False) -> dict:
+    """A general policy (``export.export_general``) on ``region`` with ``n_agents`` buoys, zero-shot: behind the
+    wall, on its local sensors, ``evaluate.episodes`` episodes from the evaluation seed at ``start``, losing
+    ``lose`` buoys half-way, in a uniform ``current`` (m/s). Beside it, naive swarming and Lloyd with the
+    paper's hand-set gains under the same physics, starts and events (``gains: hand-set``: no gain was tuned on
+    this lake). → coverage (mean, lo, hi, n over episodes), the baselines', ``ratio_to_lloyd`` and
+    ``max_outside_m``: the largest distance of any buoy outside the water at any step of any episode."""
+    import dataclasses
+
+    from .currents import Current
+    from .export import load_policy
+    from .general_train import world_env
+    from .shore import distance_outside
+    from .stats import mean_interval
+
+    module, meta = load_policy(policy_path)
+    if meta.get("n_agents") != "any":
+        raise ConfigError(f"{policy_path}: a policy for {meta.get('n_agents')} buoys of one region; --policy takes a "
+                          "general policy (replicate export of a general run)")
+    ev, gc = params.evaluate, params.general
+    if not 0 <= lose < n_agents:
+        raise ConfigError(f"--lose {lose}: lose fewer buoys than the {n_agents} of the fleet")
+    steps = max(gc.episode_length, int(np.ceil(gc.episode_length * np.sqrt(region.area / params.world.region_area))))
+    config = dataclasses.replace(gc, episode_length=steps)
+
+    def general(env):
+        with torch.no_grad():
+            return module(torch.as_tensor(env.observe())).numpy()
+
+    out = {"kind": "general policy", "policy": str(policy_path), "region": region.name, "n_agents": n_agents,
+           "start": start, "lose": lose, "current": list(current) if current else None, "steps": steps,
+           "episodes": ev.episodes, "baselines": {}}
+    policies = (("general", general), ("naive", baselines.naive_swarming(ev.naive)),
+                ("lloyd", baselines.lloyd(ev.lloyd)))
+    for name, policy in policies:
+        env = world_env(params, config, region, n_agents, ev.episodes, 0, reward=False)
+        if current is not None:
+            env.set_current(Current.uniform(np.broadcast_to(np.asarray(current, float), (ev.episodes, 2))))
+        trace = rollout(env, policy, steps, ev.seed, StartsConfig(start=start, lose=lose))
+        coverage = mean_interval(env.coverage_fraction())
+        if name == "general":
+            out["coverage"] = coverage
+            out["max_outside_m"] = float(distance_outside(region.polygon, trace["positions"]).max()) * region.scale
+        else:
+            out["baselines"][name] = {"coverage": coverage, "gains": "hand-set"}
+    out["ratio_to_lloyd"] = out["coverage"]["mean"] / out["baselines"]["lloyd"]["coverage"]["mean"]
+    return out

@@ -84,6 +84,49 @@ def export_policy(actors_path: str | Path, region: Region, out: str | Path, sens
     return metadata
 
 
+class FleetPolicy(nn.Module):
+    """a_i = tanh(μ(o_i)) for every buoy of a fleet of any size with the one shared actor: obs [N, obs_dim] or
+    [batch, N, obs_dim] → actions, same shape with 2 in the last axis."""
+
+    def __init__(self, net: nn.Sequential):
+        super().__init__()
+        self.net = net
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return torch.tanh(self.net(obs))
+
+
+def export_general(actor_path: str | Path, out: str | Path, sensitivity: float = 5.0) -> dict:
+    """Write a general policy (``general_train``'s ``actor.pt``) as TorchScript with its metadata."""
+    from .shared_maddpg import SharedActor
+
+    saved = artifacts.torch_load(actor_path, "general policy")
+    if "columns" not in saved:
+        raise CheckpointError(f"{actor_path}: not a general policy's actor (a per-region run has actors.pt)")
+    actor = SharedActor(len(saved["columns"]), 2, saved["hidden"])
+    actor.load_state_dict(saved["actor"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        module = torch.jit.script(FleetPolicy(actor.net.eval()))
+    metadata = {
+        "format": "buoy-swarm-coverage general policy v1",
+        "n_agents": "any",
+        "observation": "local",
+        "observation_layout": saved["columns"],
+        "sensors": describe(SensorsConfig(**saved["sensors"])),
+        "action": f"force direction in [-1, 1]^2 per buoy; force = {sensitivity} * action (simulation units)",
+        "input_shape": "[N, obs_dim] or [batch, N, obs_dim], simulation units, in the buoy's own frame",
+        "scale": "simulation metres: the coverage radius is 0.5; real metres = simulation metres * radius_m / 0.5",
+        "trained": {"seed": saved["seed"], "selected_episode": saved["selected_episode"]},
+    }
+    buf = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.jit.save(module, buf, _extra_files={"metadata.json": json.dumps(metadata)})
+    artifacts.atomic_write_bytes(out, buf.getvalue())
+    return metadata
+
+
 def sensor_config(meta: dict) -> SensorsConfig | None:
     """The sensors a run's actors observe with (``observation: local``), from their metadata."""
     return SensorsConfig(**meta["sensors"]) if meta.get("sensors") else None
@@ -111,7 +154,7 @@ def act(path: str | Path, observations: np.ndarray, real: bool = False) -> np.nd
     module, meta = load_policy(path)
     obs = np.asarray(observations, dtype=float)
     dim = len(meta["observation_layout"])
-    if obs.shape != (meta["n_agents"], dim):
+    if obs.ndim != 2 or obs.shape[1] != dim or (meta["n_agents"] != "any" and obs.shape[0] != meta["n_agents"]):
         raise ValueError(f"expected observations of shape ({meta['n_agents']}, {dim}) "
                          f"[{', '.join(meta['observation_layout'])}], got {obs.shape}")
     if real:

@@ -207,7 +207,8 @@ class GeneralTrainer:
     def finish(self, wall: float, cpu: float) -> dict:
         gc = self.gc
         artifacts.torch_save(self.out / "actor.pt", {
-            "actor": self.best["actor"], "observation": "local", "sensors": to_dict(gc.sensors),
+            "format": artifacts.CHECKPOINT_FORMAT, "actor": self.best["actor"], "observation": "local",
+            "sensors": to_dict(gc.sensors),
             "columns": observation_columns("local", gc.sensors), "hidden": gc.learner.hidden,
             "selected_episode": self.best["episodes"], "seed": self.seed})
         artifacts.write_csv(self.out / "curve.csv.gz", CURVE_COLUMNS, self.rows)
