@@ -36,8 +36,9 @@ $(BENCH_STAMP): $(STAMP) benchmarks/bench.lock
 	$(PY) -m pip install --quiet --disable-pip-version-check -c environment.lock -r benchmarks/bench.lock
 	touch $(BENCH_STAMP)
 
+# `make bench ARGS="--only 3 5"` runs some sections only.
 bench: $(BENCH_STAMP)
-	$(PY) benchmarks/bench.py
+	$(PY) benchmarks/bench.py $(ARGS)
 
 # Regenerate the reduced-episode regression references on purpose (after a change meant to alter curves).
 reference: $(STAMP)

@@ -87,3 +87,21 @@ def test_outline_files_with_nan_vertices_or_an_unknown_crs_are_named(capsys, tmp
     (tmp_path / "badcrs.geojson").write_text(json.dumps(doc))
     code, err = run(capsys, *TRAIN[:-5], "--region", str(tmp_path / "badcrs.geojson"), "--out", str(tmp_path / "b"))
     assert code == 2 and "declares the CRS 'urn:ogc:def:crs:EPSG::999999'" in err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["evaluate", "--policy", "nowhere.pt", "--region", "square"], "--policy nowhere.pt: no such file"),
+    (["evaluate", "--n-agents", "20", "--baseline", "lloyd", "--region", "square"],
+     "--n-agents: options of a general policy; give --policy FILE"),
+    (["evaluate", "--policy", "actor.pt", "--region", "square"], "export it first"),
+    (["evaluate", "--policy", "actor.pt"], "--policy needs --region"),
+    (["train-general", "--out", "g", "--episodes", "3"], "--episodes must be at least general.n_envs"),
+    (["train-general", "--out", "g", "--set", "general.regions=[pond]"], "general.regions: unknown region(s)"),
+])
+def test_general_policy_inputs_are_refused_by_name(capsys, tmp_path, monkeypatch, argv, message):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "actor.pt").write_bytes(b"x")
+    params = str(cli.Path(__file__).resolve().parents[1] / "params.yaml")
+    code, err = run(capsys, "--params", params, *argv)
+    assert code == 2 and message in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["actor.pt"], "nothing written"

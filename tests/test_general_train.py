@@ -81,11 +81,14 @@ def test_a_general_policy_runs_zero_shot_on_a_lake_the_repo_does_not_ship(two_ru
     gpd.GeoDataFrame({"name": ["l lake"]}, geometry=[lake], crs="EPSG:4326").to_file(tmp_path / "lake.geojson")
     for n in (9, 20):
         report = tmp_path / f"x{n}.json"
+        events = ["--lose", "5"] if n == 20 else []
         proc = cli("--set", "evaluate.episodes=8", "evaluate", "--policy", str(tmp_path / "general.pt"), "--region",
-                   str(tmp_path / "lake.geojson"), "--starts", "random", "--n-agents", str(n), "--out", str(report))
+                   str(tmp_path / "lake.geojson"), "--starts", "random", "--n-agents", str(n), *events,
+                   "--out", str(report))
         assert proc.wait(timeout=600) == 0
         result = json.loads(report.read_text())
         cov = result["coverage"]
         assert 0 <= cov["lo"] <= cov["mean"] <= cov["hi"] <= 1 and cov["n"] == 8 and result["n_agents"] == n
+        assert result["lose"] == (5 if n == 20 else 0) and result["max_outside_m"] == 0.0
         assert set(result["baselines"]) == {"naive", "lloyd"} and result["max_outside_m"] == 0.0
         assert result["ratio_to_lloyd"] == pytest.approx(cov["mean"] / result["baselines"]["lloyd"]["coverage"]["mean"])

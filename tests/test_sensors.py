@@ -115,3 +115,7 @@ def test_lost_buoys_are_not_heard(params, regions):
     rel, mask = sensors.neighbours(env.pos, 4, 2.0, env.alive)
     np.testing.assert_array_equal(mask, heard)
     assert (mask.sum(axis=-1) <= 5).all()
+    # and a lost buoy covers nothing: the coverage is the live fleet's
+    live = env.live_positions()
+    terms = env.geometry.cover_terms(live)
+    np.testing.assert_allclose(env.coverage_fraction(), env.geometry.union_area(live, terms.area) / 9.0)

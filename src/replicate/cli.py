@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import sys
@@ -12,6 +13,7 @@ import warnings
 from pathlib import Path
 
 import shapely
+from shapely import affinity
 
 from . import artifacts
 from .artifacts import CheckpointError
@@ -177,6 +179,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     params = load_params(args.params, overrides(args.set))
     if args.policy is not None:
         return evaluate_general(args, params)
+    given = [flag for flag, value, default in (("--n-agents", args.n_agents, None), ("--starts", args.starts, "corner"),
+                                               ("--lose", args.lose, 0), ("--current", args.current, None))
+             if value != default]
+    if given:
+        raise ConfigError(f"{', '.join(given)}: options of a general policy; give --policy FILE with them")
     if (args.run is None) == (args.baseline is None):
         raise ConfigError("give exactly one of a run folder (`replicate evaluate RUN`) or --baseline NAME")
     if args.baseline is not None and not args.region:
@@ -201,15 +208,20 @@ def evaluate_general(args: argparse.Namespace, params: Params) -> int:
     """``evaluate --policy``: a general policy on ``--region`` with its fleet, starts and events."""
     from .evaluate import evaluate_policy
 
-    if args.run is not None or args.baseline is not None:
-        raise ConfigError("--policy evaluates a general policy; give no run folder or --baseline with it")
+    if args.run is not None or args.baseline is not None or args.config != "paper":
+        raise ConfigError("--policy evaluates a general policy; give no run folder, --baseline or --config with it")
     if not args.region:
         raise ConfigError("--policy needs --region (square, rectangle, bedok or a vector file)")
     if not Path(args.policy).is_file():
         raise ConfigError(f"--policy {args.policy}: no such file; export a general run with `replicate export`")
+    from .evaluate import general_policy
+
+    general_policy(args.policy)  # refused by name before any work if it is not a general policy
     n = params.world.n_agents if args.n_agents is None else args.n_agents
     if not 2 <= n <= MAX_AGENTS:
         raise ConfigError(f"--n-agents must be from 2 to {MAX_AGENTS}, got {n}")
+    if not 0 <= args.lose < n:
+        raise ConfigError(f"--lose must be from 0 to {n - 1} (a fleet of {n} keeps at least one), got {args.lose}")
     current = None
     if args.current is not None:
         try:
@@ -218,11 +230,10 @@ def evaluate_general(args: argparse.Namespace, params: Params) -> int:
             current = ()
         if len(current) != 2 or not all(math.isfinite(v) for v in current):
             raise ConfigError(f"--current expects two numbers U,V (simulation m/s), got {args.current!r}")
-    area = params.world.region_area * n / params.world.n_agents  # the paper's density: 9 buoys on 9 m²
-    if args.region in params.regions:
-        region = make_region(args.region, params.regions[args.region], area)
-    else:
-        region = region_from_file(Path(args.region), area=area)
+    region = resolve_region(args.region, params)
+    s = math.sqrt(n / params.world.n_agents)  # the paper's density for any fleet: 9 buoys on 9 m²
+    region = dataclasses.replace(region, polygon=affinity.scale(region.polygon, s, s, origin=(0, 0)),
+                                 scale=region.scale / s)
     out = claim_out_file(Path(args.out or f"policy-{region.name}-n{n}.json"), args.force)
     result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current)
     artifacts.write_json(out, result)
@@ -245,6 +256,9 @@ def run_record(run: Path) -> dict:
                               "wrote") from None
     except (OSError, ValueError) as exc:
         raise CheckpointError(f"{path}: not a readable run record ({exc}); the run folder is damaged") from None
+    if isinstance(record, dict) and "general" in record:
+        raise CheckpointError(f"{run}: a general run (one policy for any lake); `replicate export {run}`, then "
+                              "`replicate evaluate --policy FILE --region R`")
     if not isinstance(record, dict) or "region" not in record:
         raise CheckpointError(f"{path}: not a run's record (no region); the run folder is damaged")
     return record
@@ -262,6 +276,34 @@ def run_region(run_dir: str, params: Params, region: str | None) -> Region:
         print(f"note: {run_dir} was trained on {own_name!r}; evaluating it on {chosen.name!r} (its actors observe "
               "absolute positions, so they know only the region they were trained on)", file=sys.stderr)
     return chosen
+
+
+def cmd_train_general(args: argparse.Namespace) -> int:
+    """``train-general``: one seed of the general policy into ``--out`` (no checkpoints: a run takes minutes)."""
+    import shutil
+
+    from .general_train import GeneralTrainer
+    from .train import training_process
+
+    params = load_params(args.params, overrides(args.set))
+    check_seed(args.seed)
+    config = params.general
+    if args.episodes is not None:
+        if args.episodes < config.n_envs:
+            raise ConfigError(f"--episodes must be at least general.n_envs ({config.n_envs}), got {args.episodes}")
+        config = dataclasses.replace(config, episodes=args.episodes)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: a file, not a folder; choose a folder for the run")
+    if out.exists() and any(out.iterdir()):
+        if not args.force:
+            raise ConfigError(f"--out {out}: holds a run already; choose a new folder or pass --force to replace it")
+        shutil.rmtree(out)
+    training_process()
+    summary = GeneralTrainer(params, args.seed, out, progress=not args.no_progress, config=config).run()
+    print(f"best validation coverage {summary['selected_validation_coverage']:.3f} at episode "
+          f"{summary['selected_episode']}; wrote {out} (`replicate export {out}` makes its policy file)")
+    return 0
 
 
 def cmd_cover(args: argparse.Namespace) -> int:
@@ -313,6 +355,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.run is None:
         raise ConfigError("export needs a run folder: `replicate export RUN`")
     if (Path(args.run) / "actor.pt").exists():  # a general run: one shared actor for any fleet and lake
+        if args.region is not None:
+            raise ConfigError(f"{args.run}: a general run has no region of its own; export it without --region")
         out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force)
         export_general(Path(args.run) / "actor.pt", out, params.world.sensitivity)
         print(f"exported the general policy (any fleet, local sensors) to {out}")
@@ -449,7 +493,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_train)
 
-    e = sub.add_parser("evaluate", help="SPEC §8 metrics of a run or a baseline, as JSON", **verb)
+    e = sub.add_parser("evaluate", help="SPEC §8 metrics of a run, a baseline or a general policy, as JSON", **verb)
     e.add_argument("run", nargs="?", default=None, help="a run folder written by `replicate train`")
     e.add_argument("--run", dest="run_option", default=None, help=argparse.SUPPRESS)  # the older spelling
     e.add_argument("--baseline", default=None,
@@ -468,6 +512,15 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--lose", type=int, default=0, help="buoys lost half-way (default 0)")
     g.add_argument("--current", default=None, help="a uniform drift U,V in simulation m/s (top speed 2)")
     e.set_defaults(func=cmd_evaluate)
+
+    tg = sub.add_parser("train-general", help="train one policy for every lake and fleet (params.yaml general)",
+                        **verb)
+    tg.add_argument("--seed", type=int, default=0, help="training seed, 0 to 2**32 - 1 (default 0)")
+    tg.add_argument("--episodes", type=int, default=None, help="episodes (default: general.episodes)")
+    tg.add_argument("--out", required=True, help="the run folder to write (actor.pt, curve.csv.gz, run.json)")
+    tg.add_argument("--force", action="store_true", help="replace a finished run in --out")
+    tg.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tg.set_defaults(func=cmd_train_general)
 
     c = sub.add_parser("cover", help="train CR-MARL on any waterbody and compare with the Lloyd layout", **verb)
     c.add_argument("--region", default=None, help="vector file (any CRS) or OSM XML (.osm) of the outline")

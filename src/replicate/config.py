@@ -107,6 +107,8 @@ def check_general(g: GeneralConfig, regions: dict) -> None:
         within(getattr(g, key), f"general.{key}", 1)
     for key in ("learning_starts", "lakes", "current_speed", "noise_start", "noise_end"):
         within(getattr(g, key), f"general.{key}", 0)
+    if g.episodes < g.n_envs:
+        raise ConfigError(f"general.episodes ({g.episodes}) must be at least general.n_envs ({g.n_envs}): one batch")
     within(g.gamma, "general.gamma", 0, 1, open_lo=True)
     within(g.reward_scale, "general.reward_scale", 0, open_lo=True)
     for n in (*g.fleet, *g.lake_fleet):
@@ -445,7 +447,7 @@ class GeneralConfig:
     batch_size: int
     buffer_size: int
     learning_starts: int  # transitions
-    update_every: int  # transitions (of one environment) per update
+    update_every: int  # transitions (summed over the environments) per update
     noise_start: float
     noise_end: float
     noise_decay: float  # share of training over which σ falls from start to end

@@ -53,7 +53,7 @@ class Current:
 
 
 def random_current(rng: np.random.Generator, n_envs: int, water: Polygon, max_speed: float) -> Current:
-    """Half the environments get a uniform flow of random heading, the other half a vortex centred in the water's
+    """Each environment gets, by a fair coin, a uniform flow of random heading or a vortex centred in the water's
     box with a core a third of its size; every speed uniform in [0, ``max_speed``]."""
     minx, miny, maxx, maxy = water.bounds
     speed = rng.uniform(0, max_speed, n_envs)

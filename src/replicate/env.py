@@ -292,6 +292,7 @@ class CoverageEnv:
         return np.zeros(pos.shape[:2]), np.full(self.n_envs, np.nan)
 
     def coverage_fraction(self) -> np.ndarray:
-        """Fast-path coverage fraction of the current positions (SPEC §8 uses the exact one). → [E]."""
-        terms = self.geometry.cover_terms(self.pos)
-        return self.geometry.union_area(self.pos, terms.area) / self.region.area
+        """Fast-path coverage fraction of the buoys in service (SPEC §8 uses the exact one). → [E]."""
+        pos = self.live_positions()
+        terms = self.geometry.cover_terms(pos)
+        return self.geometry.union_area(pos, terms.area) / self.region.area

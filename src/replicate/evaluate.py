@@ -1,4 +1,5 @@
-"""Evaluation (SPEC §8): a trained run or a baseline, 100 episodes with fixed evaluation seeds, into JSON.
+"""Evaluation (SPEC §8): a trained run, a baseline or a general policy, 100 episodes with fixed evaluation seeds,
+into JSON.
 
 All evaluation episodes run at once as E = ``episodes`` parallel environments from the evaluation seed, so a
 method and a baseline start from the same positions. Policies are deterministic (no exploration noise).
@@ -225,21 +226,17 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     ``max_outside_m``: the largest distance of any buoy outside the water at any step of any episode."""
     import dataclasses
 
+    from .config import SensorsConfig
     from .currents import Current
-    from .export import load_policy
     from .general_train import world_env
     from .shore import distance_outside
     from .stats import mean_interval
 
-    module, meta = load_policy(policy_path)
-    if meta.get("n_agents") != "any":
-        raise ConfigError(f"{policy_path}: a policy for {meta.get('n_agents')} buoys of one region; --policy takes a "
-                          "general policy (replicate export of a general run)")
-    ev, gc = params.evaluate, params.general
-    if not 0 <= lose < n_agents:
-        raise ConfigError(f"--lose {lose}: lose fewer buoys than the {n_agents} of the fleet")
-    steps = max(gc.episode_length, int(np.ceil(gc.episode_length * np.sqrt(region.area / params.world.region_area))))
-    config = dataclasses.replace(gc, episode_length=steps)
+    module, meta = general_policy(policy_path)
+    ev = params.evaluate
+    steps = max(params.general.episode_length,
+                int(np.ceil(params.general.episode_length * np.sqrt(region.area / params.world.region_area))))
+    config = dataclasses.replace(params.general, episode_length=steps, sensors=SensorsConfig(**meta["sensor_config"]))
 
     def general(env):
         with torch.no_grad():
@@ -255,11 +252,28 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
         if current is not None:
             env.set_current(Current.uniform(np.broadcast_to(np.asarray(current, float), (ev.episodes, 2))))
         trace = rollout(env, policy, steps, ev.seed, StartsConfig(start=start, lose=lose))
-        coverage = mean_interval(env.coverage_fraction())
+        live = trace["live"]  # SPEC §8's exact coverage, of the buoys still in service
+        coverage = mean_interval(metrics.coverage_fraction(region.polygon, live, params.coverage.radius,
+                                                           params.coverage.edges))
         if name == "general":
             out["coverage"] = coverage
             out["max_outside_m"] = float(distance_outside(region.polygon, trace["positions"]).max()) * region.scale
         else:
             out["baselines"][name] = {"coverage": coverage, "gains": "hand-set"}
-    out["ratio_to_lloyd"] = out["coverage"]["mean"] / out["baselines"]["lloyd"]["coverage"]["mean"]
+    lloyd = out["baselines"]["lloyd"]["coverage"]["mean"]
+    out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None
     return out
+
+
+def general_policy(path: str | Path):
+    """(module, metadata) of a general policy file, refused by name when it is another kind of policy."""
+    from .export import load_policy
+
+    if Path(path).name == "actor.pt":
+        raise ConfigError(f"{path}: a general run's actor; export it first (`replicate export RUN`), then give "
+                          "the exported file to --policy")
+    module, meta = load_policy(path)
+    if meta.get("n_agents") != "any" or "sensor_config" not in meta:
+        raise ConfigError(f"{path}: a policy for {meta.get('n_agents')} buoys of one region; --policy takes a "
+                          "general policy (`replicate export` of a general run)")
+    return module, meta

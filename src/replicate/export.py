@@ -18,7 +18,7 @@ from torch import nn
 
 from . import artifacts
 from .artifacts import CheckpointError
-from .config import SensorsConfig
+from .config import SensorsConfig, to_dict
 from .env import observation_columns
 from .regions import Region
 from .sensors import describe
@@ -101,10 +101,14 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
     from .shared_maddpg import SharedActor
 
     saved = artifacts.torch_load(actor_path, "general policy")
-    if "columns" not in saved:
-        raise CheckpointError(f"{actor_path}: not a general policy's actor (a per-region run has actors.pt)")
-    actor = SharedActor(len(saved["columns"]), 2, saved["hidden"])
-    actor.load_state_dict(saved["actor"])
+    try:
+        sensors = SensorsConfig(**saved["sensors"])
+        actor = SharedActor(len(saved["columns"]), 2, saved["hidden"])
+        actor.load_state_dict(saved["actor"])
+        trained = {"seed": saved["seed"], "selected_episode": saved["selected_episode"]}
+    except (KeyError, TypeError, RuntimeError) as exc:
+        raise CheckpointError(f"{actor_path}: not a complete general policy's actor ({type(exc).__name__}: {exc}); "
+                              "train it again with `replicate train-general`") from None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         module = torch.jit.script(FleetPolicy(actor.net.eval()))
@@ -113,11 +117,12 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
         "n_agents": "any",
         "observation": "local",
         "observation_layout": saved["columns"],
-        "sensors": describe(SensorsConfig(**saved["sensors"])),
+        "sensors": describe(sensors),
+        "sensor_config": to_dict(sensors),
         "action": f"force direction in [-1, 1]^2 per buoy; force = {sensitivity} * action (simulation units)",
         "input_shape": "[N, obs_dim] or [batch, N, obs_dim], simulation units, in the buoy's own frame",
         "scale": "simulation metres: the coverage radius is 0.5; real metres = simulation metres * radius_m / 0.5",
-        "trained": {"seed": saved["seed"], "selected_episode": saved["selected_episode"]},
+        "trained": trained,
     }
     buf = io.BytesIO()
     with warnings.catch_warnings():
@@ -158,6 +163,9 @@ def act(path: str | Path, observations: np.ndarray, real: bool = False) -> np.nd
         raise ValueError(f"expected observations of shape ({meta['n_agents']}, {dim}) "
                          f"[{', '.join(meta['observation_layout'])}], got {obs.shape}")
     if real:
+        if meta.get("n_agents") == "any":
+            raise ValueError(f"{path}: a general policy reads its sensors in simulation units (radius 0.5); give "
+                             "its observations in simulation units (without --real)")
         if meta.get("utm_crs") is None:
             raise ValueError(f"{path}: the policy's region ({meta.get('region')}) is synthetic, with no map "
                              "coordinates; give its observations in simulation units (without --real)")

@@ -55,7 +55,8 @@ class Shoreline:
 
     edges: np.ndarray
     origin: np.ndarray  # [2] lower-left corner of the grid
-    reach: float  # the longest step the grid answers for, and the side of its cells
+    reach: float  # the longest step the grid answers for
+    cell: float  # the side of its cells: at least ``reach``, and at most 512 cells along the region's box
     shape: tuple[int, int]  # cells along x, y
     starts: np.ndarray  # [cells + 1]
     index: np.ndarray  # [entries] edge numbers
@@ -65,7 +66,7 @@ def shoreline(water: Polygon, reach: float) -> Shoreline:
     """The ``Shoreline`` of ``water`` for steps of at most ``reach`` (cells ``reach`` wide)."""
     edges = shore_segments(water)
     minx, miny, maxx, maxy = water.bounds
-    cell = float(reach)
+    cell = max(float(reach), max(maxx - minx, maxy - miny) / 512)  # wider cells only list more edges
     origin = np.array([minx, miny])
     shape = (int(np.ceil((maxx - minx) / cell)) + 1, int(np.ceil((maxy - miny) / cell)) + 1)
     lo = np.minimum(edges[:, :2], edges[:, 2:]) - reach  # an edge's box grown by a step
@@ -80,18 +81,18 @@ def shoreline(water: Polygon, reach: float) -> Shoreline:
     starts = np.zeros(len(lists) + 1, dtype=np.int64)
     starts[1:] = np.cumsum([len(x) for x in lists])
     index = np.array([k for x in lists for k in x], dtype=np.int64)
-    return Shoreline(edges, origin, cell, shape, starts, index)
+    return Shoreline(edges, origin, float(reach), cell, shape, starts, index)
 
 
 @numba.njit(cache=True)
-def _first_exits(start, end, edges, origin, reach, nx, ny, starts, index, t_out, edge_out):  # pragma: no cover
+def _first_exits(start, end, edges, origin, reach, cell, nx, ny, starts, index, t_out, edge_out):  # pragma: no cover
     for m in range(start.shape[0]):
         sx, sy = start[m, 0], start[m, 1]
         dx, dy = end[m, 0] - sx, end[m, 1] - sy
         t_out[m], edge_out[m] = 2.0, -1
         if dx == 0.0 and dy == 0.0:
             continue
-        ix, iy = int(np.floor((sx - origin[0]) / reach)), int(np.floor((sy - origin[1]) / reach))
+        ix, iy = int(np.floor((sx - origin[0]) / cell)), int(np.floor((sy - origin[1]) / cell))
         local = dx * dx + dy * dy <= reach * reach and 0 <= ix < nx and 0 <= iy < ny
         lo, hi = (starts[ix * ny + iy], starts[ix * ny + iy + 1]) if local else (0, edges.shape[0])
         for j in range(lo, hi):
@@ -113,7 +114,8 @@ def first_exits(shore: Shoreline, start: np.ndarray, end: np.ndarray) -> tuple[n
     water and the edge it crosses there; t = 2 and edge −1 for a step that stays in. → ([M], [M])."""
     t, edge = np.empty(len(start)), np.empty(len(start), dtype=np.int64)
     _first_exits(np.ascontiguousarray(start, dtype=np.float64), np.ascontiguousarray(end, dtype=np.float64),
-                 shore.edges, shore.origin, shore.reach, shore.shape[0], shore.shape[1], shore.starts, shore.index,
+                 shore.edges, shore.origin, shore.reach, shore.cell, shore.shape[0], shore.shape[1], shore.starts,
+                 shore.index,
                  t, edge)
     return t, edge
 

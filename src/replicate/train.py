@@ -387,7 +387,7 @@ class Trainer:
                 self.transitions, self.pending_updates = int(state["transitions"]), float(state["pending_updates"])
                 self.updates = int(state["updates"])
                 self.wall, self.update_seconds = float(state["wall"]), float(state["update_seconds"])
-                # a checkpoint written before CPU time was recorded counts its wall time, as its run did
+                # a checkpoint without CPU time counts its wall time, as its run's summary does
                 self.cpu = float(state.get("cpu", state["wall"]))
             except (KeyError, RuntimeError, ValueError, TypeError) as exc:
                 raise CheckpointError(f"{path}: checkpoint is incomplete or mismatched ({exc})") from exc
