@@ -102,6 +102,19 @@ def benchmarl_end_to_end() -> dict:
             "per_update": statistics.median(updates) / (ENVS * HORIZON // EVERY)}
 
 
+def seconds_per_call(fn, rounds: int, calls: int = 5, warmup: int = 3) -> float:
+    """The best over ``rounds`` of the mean seconds of ``calls`` calls of ``fn``, after ``warmup`` calls."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(rounds):
+        t = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        times.append((time.perf_counter() - t) / calls)
+    return min(times)
+
+
 def benchmarl_update_alone(rounds: int = 5) -> float:
     """Seconds per BenchMARL MADDPG update of the 9 agents (loss, backward, clip, Adam, soft update), on a
     minibatch of 1,024 from a replay memory filled by one collected batch."""
@@ -109,15 +122,7 @@ def benchmarl_update_alone(rounds: int = 5) -> float:
         experiment = benchmarl_experiment(tmp, 1)
         experiment.run()  # one iteration: fills the replay memory
         group = next(iter(experiment.train_group_map))
-        for _ in range(3):
-            experiment._optimizer_loop(group)
-        times = []
-        for _ in range(rounds):
-            t = time.perf_counter()
-            for _ in range(5):
-                experiment._optimizer_loop(group)
-            times.append((time.perf_counter() - t) / 5)
-    return min(times)
+        return seconds_per_call(lambda: experiment._optimizer_loop(group), rounds)
 
 
 def project_end_to_end(episodes: int = 1000) -> dict:
@@ -154,15 +159,7 @@ def project_update_alone(rounds: int = 5) -> float:
     act = rng.uniform(-1, 1, (size, AGENTS, 2)).astype(np.float32)
     buf.add(obs, act, rng.normal(size=(size, AGENTS)).astype(np.float32), next_obs, cfg.gamma)
     agent, batch = MADDPG(AGENTS, OBS_WIDTH, 2, cfg, "individual", seed=0), buf.sample(rng, BATCH)
-    for _ in range(3):
-        agent.update(batch)
-    times = []
-    for _ in range(rounds):
-        t = time.perf_counter()
-        for _ in range(5):
-            agent.update(batch)
-        times.append((time.perf_counter() - t) / 5)
-    return min(times)
+    return seconds_per_call(lambda: agent.update(batch), rounds)
 
 
 def measure(side: str) -> dict:

@@ -76,11 +76,7 @@ def export_policy(actors_path: str | Path, region: Region, out: str | Path, sens
     if meta["observation"] == "local":
         metadata["sensors"] = describe(sensor_config(meta))
         metadata["input_shape"] = "[N, obs_dim] or [batch, N, obs_dim], simulation units, in the buoy's own frame"
-    buf = io.BytesIO()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        torch.jit.save(module, buf, _extra_files={"metadata.json": json.dumps(metadata)})
-    artifacts.atomic_write_bytes(out, buf.getvalue())
+    save_policy(module, metadata, out)
     return metadata
 
 
@@ -124,12 +120,17 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
         "scale": "simulation metres: the coverage radius is 0.5; real metres = simulation metres * radius_m / 0.5",
         "trained": trained,
     }
+    save_policy(module, metadata, out)
+    return metadata
+
+
+def save_policy(module: torch.jit.ScriptModule, metadata: dict, out: str | Path) -> None:
+    """The TorchScript ``module`` with ``metadata`` as its ``metadata.json``, written atomically to ``out``."""
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         torch.jit.save(module, buf, _extra_files={"metadata.json": json.dumps(metadata)})
     artifacts.atomic_write_bytes(out, buf.getvalue())
-    return metadata
 
 
 def sensor_config(meta: dict) -> SensorsConfig | None:

@@ -156,9 +156,9 @@ def top_speed(core: CoverageEnv) -> float:
 
 
 def reachable_bounds(core: CoverageEnv) -> tuple[np.ndarray, np.ndarray]:
-    """Per-buoy bounds of [x, y, vx, vy]: a velocity component never exceeds the terminal speed of the MPE
-    update, v_max = sensitivity·dt / (mass·damping), so a buoy released in the region is at most T·v_max·dt
-    outside its box (or at the geofence; never outside the water behind a wall)."""
+    """Per-buoy bounds of [x, y, vx, vy]: a velocity component never exceeds ``top_speed``, v_max, so a buoy
+    released in the region is at most T·v_max·dt outside its box (or at the geofence; never outside the water
+    behind a wall)."""
     w = core.world
     v_max = top_speed(core)
     minx, miny, maxx, maxy = core.region.polygon.bounds
