@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from replicate.general_train import FleetReplay, GeneralTrainer
+from replicate.general_train import FleetNStep, FleetReplay, GeneralTrainer, on_shore
 from replicate.shared_maddpg import SharedActor
 
 
@@ -55,34 +55,68 @@ def test_the_replay_pads_small_fleets():
     live = np.ones((2, 3), bool)
     arrays = {k: np.ones((2, 3, d)) if d else np.ones((2, 3)) for k, d in
               (("obs", 3), ("act", 2), ("rew", 0), ("next_obs", 3), ("pos", 2), ("next_pos", 2))}
-    replay.add(live, live, **arrays)
-    b = replay.sample(np.random.default_rng(0), 5, 0.9)
+    replay.add(live, live, 0.9, **arrays)
+    b = replay.sample(np.random.default_rng(0), 5)
     assert b.obs.shape == (5, 4, 3) and not b.live[:, 3].any() and b.live[:, :3].all()
     assert (b.rew[:, 3] == 0).all() and torch.equal(b.disc, torch.full((5,), 0.9))
+
+
+def test_n_step_transitions_sum_the_rewards_and_stop_at_a_loss():
+    """Three steps of one environment with two buoys, n = 2: r_t + γ r_{t+1}, bootstrapping at o_{t+2} with γ²;
+    the episode's last step closes with one reward and γ; buoy 1, lost before the third step, is not bootstrapped
+    from a transition that spans the loss."""
+    gamma, replay = 0.5, FleetReplay(10, 2, 1)
+    writer = FleetNStep(replay, 2, gamma)
+    live = [np.array([[True, True]]), np.array([[True, True]]), np.array([[True, False]])]
+    for t in range(3):
+        writer.add(t == 2, live=live[t], obs=np.full((1, 2, 1), t), act=np.zeros((1, 2, 2)),
+                   rew=np.array([[1.0, 10.0]]) * (t + 1) * live[t], pos=np.zeros((1, 2, 2)),
+                   next_obs=np.full((1, 2, 1), t + 1), next_pos=np.zeros((1, 2, 2)))
+    assert replay.size == 3
+    rew, disc, nxt = replay.data["rew"][:3], replay.disc[:3], replay.data["next_obs"][:3, 0, 0]
+    assert torch.allclose(rew[0], torch.tensor([1 + gamma * 2, 10 + gamma * 20]))
+    assert torch.allclose(rew[1], torch.tensor([2 + gamma * 3, 20.0]))  # buoy 1 earns nothing once lost
+    assert torch.allclose(rew[2], torch.tensor([3.0, 0.0]))
+    assert torch.allclose(disc, torch.tensor([gamma**2, gamma**2, gamma])) and nxt.tolist() == [2.0, 3.0, 3.0]
+    assert replay.next_live[:3].tolist() == [[True, True], [True, False], [True, False]]
+    assert replay.live[:3].tolist() == [[True, True], [True, True], [True, False]]
+
+
+def test_a_buoy_on_the_shore_reads_a_zero_ray():
+    columns = ["vx", "vy", "shore_0deg", "shore_90deg"]
+    obs = np.array([[[0, 0, 0.0, 1.0], [0, 0, 0.3, 2.0]]])
+    assert on_shore(obs, columns).tolist() == [[True, False]]
 
 
 @pytest.mark.slow
 def test_a_general_policy_runs_zero_shot_on_a_lake_the_repo_does_not_ship(two_runs, tmp_path):
     """`replicate export` of a general run, then `replicate evaluate --policy` on an L-shaped lake with an island
     given as GeoJSON in longitude/latitude, scattered starts, 9 and then 20 buoys: coverage with its interval,
-    the baselines under the same rules, and no buoy ever outside the water."""
+    the baselines under the same rules (hand-set gains, then the gains the exported policy carries), the best
+    layout of the buoys in service, and no buoy ever outside the water."""
     import geopandas as gpd
     from shapely.geometry import Polygon
 
     from .test_training import cli
 
     out, _ = two_runs
+    gains = {"naive_tuned": {"gains": {"attraction": 8.0, "avoid_range": 1.0, "avoidance": 10.0, "damping": 0.1}},
+             "lloyd_tuned": {"gains": {"gain": 50.0, "damping": 0.2}}}
+    (tmp_path / "gains.json").write_text(json.dumps(gains))
     assert cli("export", str(out / "run0"), "--out", str(tmp_path / "general.pt")).wait(timeout=300) == 0
+    assert cli("export", str(out / "run0"), "--out", str(tmp_path / "carrying.pt"), "--baseline-gains",
+               str(tmp_path / "gains.json")).wait(timeout=300) == 0
     deg = 1e-4  # ~11 m
     lake = Polygon([(103.9, 1.33), (103.9 + 6 * deg, 1.33), (103.9 + 6 * deg, 1.33 + 2 * deg),
                     (103.9 + 2 * deg, 1.33 + 2 * deg), (103.9 + 2 * deg, 1.33 + 6 * deg), (103.9, 1.33 + 6 * deg)],
                    holes=[[(103.9 + 0.6 * deg, 1.33 + 0.6 * deg), (103.9 + 1.2 * deg, 1.33 + 0.6 * deg),
                            (103.9 + 1.2 * deg, 1.33 + 1.2 * deg), (103.9 + 0.6 * deg, 1.33 + 1.2 * deg)]])
     gpd.GeoDataFrame({"name": ["l lake"]}, geometry=[lake], crs="EPSG:4326").to_file(tmp_path / "lake.geojson")
-    for n in (9, 20):
+    cases = ((9, "general.pt", {"naive", "lloyd"}), (20, "carrying.pt", {"naive_tuned", "lloyd_tuned"}))
+    for n, policy, rivals in cases:
         report = tmp_path / f"x{n}.json"
         events = ["--lose", "5"] if n == 20 else []
-        proc = cli("--set", "evaluate.episodes=8", "evaluate", "--policy", str(tmp_path / "general.pt"), "--region",
+        proc = cli("--set", "evaluate.episodes=8", "evaluate", "--policy", str(tmp_path / policy), "--region",
                    str(tmp_path / "lake.geojson"), "--starts", "random", "--n-agents", str(n), *events,
                    "--out", str(report))
         assert proc.wait(timeout=600) == 0
@@ -90,5 +124,38 @@ def test_a_general_policy_runs_zero_shot_on_a_lake_the_repo_does_not_ship(two_ru
         cov = result["coverage"]
         assert 0 <= cov["lo"] <= cov["mean"] <= cov["hi"] <= 1 and cov["n"] == 8 and result["n_agents"] == n
         assert result["lose"] == (5 if n == 20 else 0) and result["max_outside_m"] == 0.0
-        assert set(result["baselines"]) == {"naive", "lloyd"} and result["max_outside_m"] == 0.0
-        assert result["ratio_to_lloyd"] == pytest.approx(cov["mean"] / result["baselines"]["lloyd"]["coverage"]["mean"])
+        assert set(result["baselines"]) == rivals | {"geodesic_lloyd", "best_layout"}
+        lloyd = result["baselines"][sorted(rivals)[0]]["coverage"]["mean"]
+        assert result["ratio_to_lloyd"] == pytest.approx(cov["mean"] / lloyd)
+        best = result["baselines"]["best_layout"]
+        assert best["buoys"] == n - (5 if n == 20 else 0)
+        assert max(b["coverage"]["mean"] for b in result["baselines"].values()) <= best["coverage"]["mean"] + 0.01
+
+
+def test_the_pipeline_keeps_the_best_validated_seed_and_skips_finished_ones(tmp_path):
+    """``pipeline.general.train_general``: each seed trained once, the best-validated one exported with the
+    baselines' gains; run again with the same settings, nothing is trained."""
+    import yaml
+
+    from replicate.export import load_policy
+    from replicate.pipeline.general import train_general
+
+    from .conftest import ROOT
+
+    raw = yaml.safe_load((ROOT / "params.yaml").read_text())
+    raw["general"].update(regions=["square"], fleet=[6], lakes=1, lake_fleet=[5, 5], lake_ratio=[1.0, 1.0],
+                          n_envs=4, episodes=8, episode_length=10, learning_starts=50, batch_size=16,
+                          buffer_size=1000, update_every=8, seeds=[0, 1])
+    raw["regions"]["bedok"]["path"] = str(ROOT / raw["regions"]["bedok"]["path"])
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+    gains = {"naive_tuned": {"gains": {"attraction": 8.0, "avoid_range": 1.0, "avoidance": 10.0, "damping": 0.1}},
+             "lloyd_tuned": {"gains": {"gain": 50.0, "damping": 0.2}}}
+    (tmp_path / "gains.json").write_text(json.dumps(gains))
+    first = train_general(str(tmp_path / "params.yaml"), str(tmp_path / "policies"), str(tmp_path / "gains.json"), 1)
+    scores = {r["seed"]: r["selected_validation_coverage"] for r in first["runs"]}
+    assert first["kept_seed"] == max(scores, key=scores.get) and not any(r["skipped"] for r in first["runs"])
+    _, meta = load_policy(tmp_path / "policies" / "general.pt")
+    assert meta["n_agents"] == "any" and meta["trained"]["seed"] == first["kept_seed"]
+    assert meta["baseline_gains"]["lloyd_tuned"]["gains"] == gains["lloyd_tuned"]["gains"]
+    again = train_general(str(tmp_path / "params.yaml"), str(tmp_path / "policies"), str(tmp_path / "gains.json"), 1)
+    assert all(r["skipped"] for r in again["runs"]) and again["kept_seed"] == first["kept_seed"]

@@ -110,6 +110,8 @@ def test_dvc_repro_end_to_end(tmp_path):
     params["tuning"].update(starts=4)
     params["tuning"]["baselines"]["naive"]["trials"] = 3
     params["tuning"]["baselines"]["lloyd"]["trials"] = 3
+    params["tuning"]["general_baselines"].update(starts=2, naive_trials=2, lloyd_trials=2)
+    params["general"].update(regions=["square"], fleet=[6], lakes=1, lake_fleet=[5, 5], lake_ratio=[1.0, 1.0])
     params["pipeline"]["configs"] = ["paper", "tuned"]
     params["pipeline"]["ablation"] = True  # the experiment `dvc exp run -S pipeline.ablation=true`, here in one go
     params["configs"]["tuned"]["select_every"] = 25  # so the checkpoint_selection ablation has last actors
@@ -146,6 +148,8 @@ def test_dvc_repro_end_to_end(tmp_path):
     gifs = {p.name for p in (repo / "figures").glob("*.gif")}
     regions = ("square", "rectangle", "bedok")
     assert gifs == {f"anim_{c}_cr_{r}.gif" for c in params["pipeline"]["configs"] for r in regions}
+    general = json.loads((repo / "metrics" / "tuning" / "general_baselines.json").read_text())
+    assert {k: v["trials"] for k, v in general.items()} == {"naive_tuned": 2, "lloyd_tuned": 2}
     outline = json.loads((repo / "data" / "bedok_outline.geojson").read_text())
     assert outline["features"][0]["properties"]["source"] == "fallback"
     assert "bundled" in (repo / "notebooks" / "executed" / "fetch_outline.ipynb").read_text()

@@ -88,3 +88,19 @@ def test_same_seed_same_networks_and_torch_stream_untouched():
     assert torch.equal(torch.rand(3), expected), "building the networks drew nothing from torch's global stream"
     for p, q in zip(a.actor.parameters(), b.actor.parameters()):
         assert torch.equal(p, q)
+
+
+def test_a_pool_range_leaves_far_buoys_out_of_the_critic():
+    """With ``pool_range`` the critic pools only the buoys within it: moving a buoy that is out of range of all
+    others further away changes nobody else's Q; the whole-fleet critic does see it."""
+    torch.manual_seed(2)
+    b = fleet(5, batch=3)
+    b.pos[:, :4] = torch.rand(3, 4, 2)  # four buoys within 1.5 m of each other ...
+    b.pos[:, 4] = torch.tensor([10.0, 10.0])  # ... and one far away
+    moved = b.pos.clone()
+    moved[:, 4] = torch.tensor([20.0, -5.0])
+    near, whole = PooledCritic(OD, AD, 64, 32, pool_range=2.0), PooledCritic(OD, AD, 64, 32)
+    whole.load_state_dict(near.state_dict())
+    for critic, same in ((near, True), (whole, False)):
+        q, q_moved = critic(b.obs, b.act, b.pos, b.live), critic(b.obs, b.act, moved, b.live)
+        assert torch.equal(q[:, :4], q_moved[:, :4]) == same

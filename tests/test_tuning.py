@@ -100,3 +100,23 @@ def test_suggest_draws_inside_every_range():
         values = tuning.suggest(study.ask(), space)
         assert 0.1 <= values["a"] <= 10.0 and values["b"] in (None, 0.5) and isinstance(values["c"], int)
     assert np.isfinite(values["a"])
+
+
+def test_general_baselines_are_tuned_once_on_the_training_worlds_behind_the_wall(tmp_path):
+    """One set of naive and Lloyd gains for every lake: a seeded study over the general policy's training worlds
+    (here the square with 6 buoys and one small generated lake), its objective the coverage it reports, read back
+    when finished, written by `replicate tune general-baselines` and carried by an exported general policy."""
+    p = load_params(ROOT / "params.yaml", {
+        "general.regions": ["square"], "general.fleet": [6], "general.lakes": 1, "general.lake_fleet": [5, 5],
+        "general.lake_ratio": [1.0, 1.0], "tuning.general_baselines.starts": 2,
+        "tuning.general_baselines.naive_trials": 3, "tuning.general_baselines.lloyd_trials": 2,
+        "tuning.general_baselines.storage": f"sqlite:///{tmp_path}/g.db"})
+    worlds = tuning.general_worlds(p)
+    assert [env.n_agents for _, env in worlds] == [6, 5] and all(env.wall for _, env in worlds)
+    out = tuning.tune_general_baselines(p)
+    assert set(out) == {"naive_tuned", "lloyd_tuned"}
+    assert out["naive_tuned"]["trials"] == 3 and out["lloyd_tuned"]["trials"] == 2
+    assert set(out["lloyd_tuned"]["gains"]) == {"gain", "damping"}
+    score = tuning.general_baseline_coverage("lloyd", p, out["lloyd_tuned"]["gains"])
+    assert score == pytest.approx(out["lloyd_tuned"]["tuning_coverage"])
+    assert tuning.tune_general_baselines(p) == out  # finished: read back, nothing rerun

@@ -4,11 +4,14 @@
 * naive swarming (after Zoss et al. 2018): attraction toward the region's interior plus avoidance of agents
   closer than a range, hand-set gains;
 * Lloyd / centroidal Voronoi (Cortés et al. 2004): each agent steers toward the centroid of its Voronoi cell
-  clipped to the region; its converged layout is the practical optimum of the coverage metric.
+  clipped to the region; its converged layout is the practical optimum of the coverage metric on a convex lake
+  (on a lake with arms the centroid objective is not coverage: ``best_layout`` is the limit there);
+* geodesic Lloyd: the same with cells and paths measured through the water (``geodesic``), for lakes with arms.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import numpy as np
@@ -17,6 +20,7 @@ from shapely.geometry import Polygon
 
 from .config import LloydConfig, NaiveConfig
 from .env import CoverageEnv
+from .geodesic import geodesic_targets, water_graph
 
 Policy = Callable[[CoverageEnv], np.ndarray]
 
@@ -51,12 +55,31 @@ def for_live_buoys(steer: Callable[[CoverageEnv, np.ndarray, np.ndarray], np.nda
     return policy
 
 
+@functools.lru_cache(maxsize=64)
+def _interior(region_wkb: bytes, eroded_wkb: bytes) -> Polygon:
+    eroded = shapely.from_wkb(eroded_wkb)
+    if not eroded.is_empty:
+        return eroded
+    region = shapely.from_wkb(region_wkb)
+    depth = shapely.maximum_inscribed_circle(region).length  # the deepest point's distance to the shore
+    return region.buffer(-0.5 * depth)
+
+
+def interior(region: Polygon, eroded: Polygon) -> Polygon:
+    """Naive swarming's target: the interior Reg ⊖ Cov, where a buoy's coverage polygon fits in the water. Where
+    the lake is nowhere that deep (its deepest point closer to the shore than R, so Reg ⊖ Cov is empty), the
+    water at least half the deepest point's depth from the shore: a non-empty middle of the lake, never the
+    whole lake (which would leave buoys on the shore with no pull at all)."""
+    return _interior(region.wkb, eroded.wkb)
+
+
 def naive_swarming(cfg: NaiveConfig) -> Policy:
-    """Attraction toward the interior (the points where the coverage polygon fits, Reg ⊖ Cov) for agents
-    outside it, plus linear repulsion from every agent closer than ``avoid_range``, minus a velocity damping."""
+    """Attraction toward the interior (``interior``: the points where the coverage polygon fits, Reg ⊖ Cov) for
+    agents outside it, plus linear repulsion from every agent closer than ``avoid_range``, minus a velocity
+    damping."""
 
     def steer(env: CoverageEnv, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
-        target_region = env.geometry.eroded if not env.geometry.eroded.is_empty else env.region.polygon
+        target_region = interior(env.region.polygon, env.geometry.eroded)
         flat = pos.reshape(-1, 2)
         outside = ~shapely.contains_xy(target_region, flat[:, 0], flat[:, 1])
         attract = np.zeros_like(flat)
@@ -75,30 +98,49 @@ def naive_swarming(cfg: NaiveConfig) -> Policy:
     return for_live_buoys(steer)
 
 
+SEPARATION = 1e-6  # m: how far apart ``separate_coincident`` sets buoys that share a point, for the diagram only
+
+
+def separate_coincident(xy: np.ndarray, inward: np.ndarray, eps: float = SEPARATION) -> np.ndarray:
+    """The points [E, N, 2] with every group of m > 1 coincident points of one environment spread onto a circle
+    of radius ``eps`` about their point, member k at angle θ + π/m + 2πk/m (k in agent order), θ the direction
+    from the point toward ``inward`` [2] (a point of the water). GEOS builds no Voronoi diagram of coincident
+    points; spread this way, the group's shared cell splits into m wedges, one boundary of which points into the
+    water, so a group that the shore wall pinned to one vertex has at least two wedges in the water and breaks
+    up. Points that are not shared are returned as they are: a diagram without coincident points is unchanged."""
+    same = (xy[:, :, None] == xy[:, None]).all(axis=-1)  # [E, N, N]
+    size = same.sum(axis=2)  # [E, N]: how many agents share agent i's point (itself included)
+    if (size == 1).all():
+        return xy
+    rank = np.tril(same, k=-1).sum(axis=2)  # [E, N]: how many of them come before it
+    toward = inward - xy
+    angle = np.arctan2(toward[..., 1], toward[..., 0]) + np.pi * (2 * rank + 1) / size
+    offset = eps * np.stack([np.cos(angle), np.sin(angle)], axis=-1) * (size > 1)[..., None]
+    return xy + offset
+
+
 def voronoi_centroids(region: Polygon, xy: np.ndarray) -> np.ndarray:
     """Centroid of each agent's Voronoi cell clipped to the region (nearest region point if the cell misses
     it). xy [N, 2] or, for E environments at once, [E, N, 2] → the same shape.
 
     Each environment's diagram is its own (its frame is padded by its own agents' reach); GEOS runs once for all
     environments' diagrams, once for all clippings and once for all centroids (a Python loop over environments
-    cost as much as GEOS). An environment whose agents coincide has no proper diagram: its agents head for the
-    region's nearest point."""
+    cost as much as GEOS). Agents at one point share its cell in equal wedges (``separate_coincident``); an
+    environment whose diagram GEOS still cannot build has its agents head for the region's nearest point."""
     xy = np.asarray(xy, dtype=float)
     batch = xy[None] if xy.ndim == 2 else xy
     e, n = batch.shape[:2]
     if n == 1:
         cells, proper = np.full(e, region, dtype=object), np.ones(e, bool)
     else:
-        same = (batch[:, :, None] == batch[:, None]).all(axis=-1)  # [E, N, N]
-        proper = same.sum(axis=(1, 2)) == n  # no two agents at one point (GEOS refuses such a diagram)
+        sites = separate_coincident(batch, shapely.get_coordinates(region.point_on_surface())[0])
         minx, miny, maxx, maxy = region.bounds
-        pad = max(maxx - minx, maxy - miny) + np.abs(batch[proper]).max(axis=(1, 2))  # [E']
+        pad = max(maxx - minx, maxy - miny) + np.abs(sites).max(axis=(1, 2))  # [E]
         frames = shapely.box(minx - pad, miny - pad, maxx + pad, maxy + pad)
-        diagrams = shapely.voronoi_polygons(shapely.multipoints(batch[proper]), extend_to=frames, ordered=True)
+        diagrams = shapely.voronoi_polygons(shapely.multipoints(sites), extend_to=frames, ordered=True)
         parts, owner = shapely.get_parts(diagrams, return_index=True)
-        whole = np.bincount(owner, minlength=len(diagrams)) == n  # a diagram with a cell per agent
-        proper[proper] = whole
-        cells = parts[whole[owner]]  # the proper environments' cells, n each, in agent order
+        proper = np.bincount(owner, minlength=len(diagrams)) == n  # a diagram with a cell per agent
+        cells = parts[proper[owner]]  # the proper environments' cells, n each, in agent order
     clipped = shapely.intersection(cells, region).reshape(-1, n)  # [E', N]
     coords, which = shapely.get_coordinates(shapely.centroid(clipped).ravel(), return_index=True)
     target = np.full((*clipped.shape, 2), np.nan)  # [E', N, 2], NaN where a cell has no centroid
@@ -120,5 +162,23 @@ def lloyd(cfg: LloydConfig) -> Policy:
     def steer(env: CoverageEnv, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
         target = voronoi_centroids(env.region.polygon, pos)
         return np.clip(cfg.gain * (target - pos) - cfg.damping * vel, -1.0, 1.0)
+
+    return for_live_buoys(steer)
+
+
+def geodesic_lloyd(cfg: LloydConfig, spacing: float, lookahead: float) -> Policy:
+    """Lloyd through the water (``geodesic``): steer toward the centroid of the buoy's geodesic cell along the
+    shortest path, a = gain·d·u − damping·v, clipped to [-1, 1], where d is the distance to sail and u the unit
+    vector toward the path's waypoint ``lookahead`` metres ahead. On a convex lake it is Lloyd to the raster's
+    ``spacing``; on a lake with arms, a buoy's cell ends where sailing, not flying, is shorter for another."""
+    def steer(env: CoverageEnv, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
+        g = water_graph(env.region.polygon, spacing)
+        action = np.empty_like(pos)
+        for e in range(len(pos)):  # one Dijkstra per environment (scipy runs all of its buoys at once)
+            _, waypoint, distance = geodesic_targets(g, pos[e], lookahead)
+            heading = waypoint - pos[e]
+            heading /= np.maximum(np.linalg.norm(heading, axis=1, keepdims=True), 1e-9)
+            action[e] = cfg.gain * distance[:, None] * heading
+        return np.clip(action - cfg.damping * vel, -1.0, 1.0)
 
     return for_live_buoys(steer)

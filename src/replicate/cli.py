@@ -237,10 +237,12 @@ def evaluate_general(args: argparse.Namespace, params: Params) -> int:
     out = claim_out_file(Path(args.out or f"policy-{region.name}-n{n}.json"), args.force)
     result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current)
     artifacts.write_json(out, result)
-    cov, lloyd = result["coverage"], result["baselines"]["lloyd"]["coverage"]
-    print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes), "
-          f"Lloyd {lloyd['mean']:.3f} (hand-set gains), ratio {result['ratio_to_lloyd']:.3f}; furthest outside the "
-          f"water {result['max_outside_m']:.3g} m; wrote {out}")
+    cov, rivals = result["coverage"], result["baselines"]
+    lloyd = next(rivals[k] for k in ("lloyd_tuned", "lloyd") if k in rivals)
+    print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes); "
+          f"Lloyd {lloyd['coverage']['mean']:.3f} ({lloyd['gains']} gains), ratio {result['ratio_to_lloyd']:.3f}; "
+          f"best layout {rivals['best_layout']['coverage']['mean']:.3f}, ratio {result['ratio_to_best']:.3f}; "
+          f"furthest outside the water {result['max_outside_m']:.3g} m; wrote {out}")
     return 0
 
 
@@ -348,6 +350,26 @@ def cover_into(args: argparse.Namespace, params: Params, out: Path, tempfile) ->
                      not args.no_progress)
 
 
+def read_baseline_gains(path: str | None) -> dict | None:
+    """The general baselines' study result (``replicate tune general-baselines``), checked, or None."""
+    import json
+
+    if path is None:
+        return None
+    try:
+        gains = json.loads(Path(path).read_text())
+        for kind in ("naive_tuned", "lloyd_tuned"):
+            if not isinstance(gains[kind]["gains"], dict):
+                raise TypeError(kind)
+    except FileNotFoundError:
+        raise ConfigError(f"--baseline-gains {path}: no such file; `replicate tune general-baselines` writes it") \
+            from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"--baseline-gains {path}: not the general baselines' gains ({type(exc).__name__}: "
+                          f"{exc}); write it with `replicate tune general-baselines`") from None
+    return gains
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     from .export import export_general, export_policy
 
@@ -357,10 +379,14 @@ def cmd_export(args: argparse.Namespace) -> int:
     if (Path(args.run) / "actor.pt").exists():  # a general run: one shared actor for any fleet and lake
         if args.region is not None:
             raise ConfigError(f"{args.run}: a general run has no region of its own; export it without --region")
+        gains = read_baseline_gains(args.baseline_gains)
         out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force)
-        export_general(Path(args.run) / "actor.pt", out, params.world.sensitivity)
-        print(f"exported the general policy (any fleet, local sensors) to {out}")
+        export_general(Path(args.run) / "actor.pt", out, params.world.sensitivity, gains)
+        print(f"exported the general policy (any fleet, local sensors) to {out}"
+              + (f", with the baselines' gains of {args.baseline_gains}" if gains else ""))
         return 0
+    if args.baseline_gains is not None:
+        raise ConfigError("--baseline-gains goes with a general run; a per-region run has its own baselines")
     region = run_region(args.run, params, args.region)
     out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force)
     meta = export_policy(Path(args.run) / "actors.pt", region, out, params.world.sensitivity)
@@ -410,7 +436,7 @@ def cmd_animate(args: argparse.Namespace) -> int:
 
 def cmd_tune(args: argparse.Namespace) -> int:
     from .executor import configured_executor
-    from .tuning import tune_baselines, tune_method
+    from .tuning import tune_baselines, tune_general_baselines, tune_method
 
     params = load_params(args.params, overrides(args.set))
     executor = configured_executor(params, args.executor)
@@ -421,6 +447,13 @@ def cmd_tune(args: argparse.Namespace) -> int:
         artifacts.write_json(out, result["baselines"])
         for key, b in result["baselines"].items():
             print(f"{key}: tuning coverage {b['tuning_coverage']:.3f} with {b['gains']} ({b['trials']} trials)")
+    elif args.what == "general-baselines":
+        result = tune_general_baselines(params, executor)
+        out = Path(args.out or params.tuning.general_baselines.result)
+        artifacts.write_json(out, result)
+        for key, b in result.items():
+            print(f"{key}: coverage {b['tuning_coverage']:.3f} on the training worlds with {b['gains']} "
+                  f"({b['trials']} trials, {b['cpu_seconds']:.0f} CPU s)")
     else:
         ms = params.tuning.method
         result = tune_method(params, {r: resolve_region(r, params) for r in ms.regions}, executor)
@@ -543,6 +576,9 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("--region", default=None, help=f"{regions} (default: the run's own)")
     x.add_argument("--out", default=None, help="TorchScript file (default: RUN/policy.pt)")
     x.add_argument("--force", action="store_true", help="replace --out if it exists")
+    x.add_argument("--baseline-gains", default=None, metavar="FILE",
+                   help="a general run: carry these baseline gains (`replicate tune general-baselines`) in the "
+                        "policy, for `evaluate --policy` to compare with")
     x.set_defaults(func=cmd_export)
 
     a = sub.add_parser("act", help="map observations to commands with an exported policy (prints JSON)", **verb)
@@ -554,11 +590,14 @@ def build_parser() -> argparse.ArgumentParser:
     a.set_defaults(func=cmd_act)
 
     u = sub.add_parser("tune", help="Optuna studies: the baselines' gains, or a method's training values", **verb)
-    u.add_argument("what", choices=("baselines", "method"),
+    u.add_argument("what", choices=("baselines", "method", "general-baselines"),
                    help="baselines: every gain of naive swarming and Lloyd per region (tuning.baselines); method: "
-                        "tuning.method's training values (trials train on the tuning seeds)")
+                        "tuning.method's training values (trials train on the tuning seeds); general-baselines: "
+                        "one set of naive and Lloyd gains for every lake, on the general policy's training worlds "
+                        "behind the wall (tuning.general_baselines)")
     u.add_argument("--out", default=None,
-                   help="JSON of the best values (default: metrics/tuning/baselines.json, or tuning.method.result)")
+                   help="JSON of the best values (default: metrics/tuning/baselines.json, tuning.method.result or "
+                        "tuning.general_baselines.result)")
     u.add_argument("--executor", choices=("local", "ray"), default=None,
                    help="where trials run: local (one after another) or ray (Ray tasks; RAY_ADDRESS joins a "
                         "cluster; several `replicate tune` may share one study through a storage URL) (default: "

@@ -110,6 +110,10 @@ def check_general(g: GeneralConfig, regions: dict) -> None:
     if g.episodes < g.n_envs:
         raise ConfigError(f"general.episodes ({g.episodes}) must be at least general.n_envs ({g.n_envs}): one batch")
     within(g.gamma, "general.gamma", 0, 1, open_lo=True)
+    for key in ("cover_weight", "shore_penalty"):
+        within(getattr(g, key), f"general.{key}", 0)
+    within(g.n_step, "general.n_step", 1, 50)
+    within(g.lr_end, "general.lr_end", 0, 1, open_lo=True)
     within(g.reward_scale, "general.reward_scale", 0, open_lo=True)
     for n in (*g.fleet, *g.lake_fleet):
         within(n, "general.fleet and general.lake_fleet", 2, MAX_AGENTS)
@@ -126,6 +130,7 @@ def check_general(g: GeneralConfig, regions: dict) -> None:
     for key in ("actor_lr", "critic_lr", "grad_clip"):
         within(getattr(g.learner, key), f"general.learner.{key}", 0, open_lo=True)
     within(g.learner.tau, "general.learner.tau", 0, 1, open_lo=True)
+    within(g.learner.pool_range, "general.learner.pool_range", 0)
 
 
 def check_seed(seed: int, where: str = "--seed") -> int:
@@ -283,6 +288,15 @@ class LloydConfig:
 
 
 @dataclass(frozen=True)
+class GeodesicConfig:
+    """Geodesic Lloyd (``baselines.geodesic_lloyd``): the water's raster and how far ahead a buoy aims along its
+    path; its gains are Lloyd's."""
+
+    spacing: float  # m between the water graph's points
+    lookahead: float  # m of sailing to the waypoint a buoy steers toward
+
+
+@dataclass(frozen=True)
 class StartsConfig:
     """Where the buoys are released: ``corner`` is the paper's start patch at the region's lower-left corner,
     ``opposite`` the same patch at the upper-right corner, ``random`` uniform over the region."""
@@ -301,6 +315,7 @@ class EvaluateConfig:
     converge_final: int
     naive: NaiveConfig
     lloyd: LloydConfig
+    geodesic: GeodesicConfig
     robustness: dict[str, StartsConfig] = field(default_factory=dict)  # scenario name → its starts and events
 
 
@@ -364,6 +379,18 @@ class HandSearch:
 
 
 @dataclass(frozen=True)
+class GeneralBaselineSearch:
+    """Naive swarming's and Lloyd's gains for the general policy's comparisons: one set for every lake, tuned on
+    its training worlds behind the wall (``tuning.tune_general_baselines``), in the spaces of ``baselines``."""
+
+    storage: str  # SQLAlchemy URL of the studies
+    result: str  # JSON of the best gains, which ``replicate evaluate --policy`` reads
+    starts: int  # episodes per world and trial: half from the corner patch, half scattered
+    naive_trials: int
+    lloyd_trials: int
+
+
+@dataclass(frozen=True)
 class TuningConfig:
     sampler_seed: int  # the TPE sampler's seed: the same trials in the same order on every machine
     starts_seed: int  # evaluation starts of every trial (never ``evaluate.seed``)
@@ -371,6 +398,7 @@ class TuningConfig:
     baselines: BaselineSearch
     method: MethodSearch
     hand_search: HandSearch
+    general_baselines: GeneralBaselineSearch
 
 
 @dataclass(frozen=True)
@@ -422,6 +450,7 @@ class SharedLearnerConfig:
     tau: float = 0.01
     grad_clip: float = 0.5
     actor_reg: float = 1e-3  # on the pre-tanh action, as openai/maddpg
+    pool_range: float = 0.0  # m: the critic pools only the others this close (0: every other buoy of the fleet)
 
 
 @dataclass(frozen=True)
@@ -443,7 +472,11 @@ class GeneralConfig:
     episode_length: int
     reward_scale: float
     union_weight: float  # c2 of eq. (6), with the difference credit
+    cover_weight: float  # c1 of eq. (6): the weight of eq. (5)'s per-buoy terms (0: the difference credit alone)
+    shore_penalty: float  # subtracted (after reward_scale) per step from a buoy resting on the shore
     gamma: float
+    n_step: int  # n-step TD targets (1: MADDPG's one-step target)
+    lr_end: float  # both learning rates fall linearly to lr_end x their start over training (1.0: constant)
     batch_size: int
     buffer_size: int
     learning_starts: int  # transitions
@@ -514,6 +547,11 @@ class Params:
         for key in ("table_spacing", "raster_spacing"):  # a cell wider than the coverage polygon resolves nothing
             within(getattr(c, key), f"coverage.{key}", 0, c.radius / 2, open_lo=True)
         within(self.evaluate.episodes, "evaluate.episodes", 1)
+        within(self.evaluate.geodesic.spacing, "evaluate.geodesic.spacing", 0, c.radius, open_lo=True)
+        within(self.evaluate.geodesic.lookahead, "evaluate.geodesic.lookahead", 0, open_lo=True)
+        gb = self.tuning.general_baselines
+        for key in ("starts", "naive_trials", "lloyd_trials"):
+            within(getattr(gb, key), f"tuning.general_baselines.{key}", 1)
         for name, spec in self.regions.items():
             if spec.episode_length is not None and spec.episode_length < 1:
                 raise ConfigError(f"regions.{name}.episode_length must be at least 1, got {spec.episode_length}")

@@ -216,26 +216,43 @@ def evaluate_baseline(name: str, params: Params, region: Region, config: str = "
     return out
 
 
+def general_baselines(params: Params, gains: dict | None) -> tuple[dict[str, baselines.Policy], str]:
+    """The general policy's comparisons → ({name: policy}, how their gains were set). With ``gains`` (the study of
+    ``tuning.general_baselines``, carried in the policy's metadata): ``naive_tuned``, ``lloyd_tuned`` and
+    geodesic Lloyd with Lloyd's tuned gains, each tuned once on the policy's training worlds, never on the lake
+    evaluated; without them, the paper's hand-set ``naive`` and ``lloyd`` and geodesic Lloyd with Lloyd's."""
+    ev = params.evaluate
+    if gains:
+        naive, lloyd = NaiveConfig(**gains["naive_tuned"]["gains"]), LloydConfig(
+            **gains["lloyd_tuned"]["gains"], converged_steps=ev.lloyd.converged_steps)
+        names, how = ("naive_tuned", "lloyd_tuned"), "tuned on the policy's training worlds"
+    else:
+        naive, lloyd, names, how = ev.naive, ev.lloyd, ("naive", "lloyd"), "hand-set"
+    return {names[0]: baselines.naive_swarming(naive), names[1]: baselines.lloyd(lloyd),
+            "geodesic_lloyd": baselines.geodesic_lloyd(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)}, how
+
+
 def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
                     lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False) -> dict:
     """A general policy (``export.export_general``) on ``region`` with ``n_agents`` buoys, zero-shot: behind the
     wall, on its local sensors, ``evaluate.episodes`` episodes from the evaluation seed at ``start``, losing
-    ``lose`` buoys half-way, in a uniform ``current`` (m/s). Beside it, naive swarming and Lloyd with the
-    paper's hand-set gains under the same physics, starts and events (``gains: hand-set``: no gain was tuned on
-    this lake). → coverage (mean, lo, hi, n over episodes), the baselines', ``ratio_to_lloyd`` and
-    ``max_outside_m``: the largest distance of any buoy outside the water at any step of any episode."""
+    ``lose`` buoys half-way, in a uniform ``current`` (m/s). Beside it, under the same physics, starts and events,
+    the baselines of ``general_baselines`` and the best layout of the buoys left in service (``best_layout``: no
+    physics, the limit). → coverage (mean, lo, hi, n over episodes), the baselines', ``ratio_to_lloyd``,
+    ``ratio_to_best`` and ``max_outside_m``: the largest distance of any buoy outside the water at any step of
+    any episode."""
     import dataclasses
 
+    from .best_layout import best_layout
     from .config import SensorsConfig
     from .currents import Current
-    from .general_train import world_env
+    from .general_train import horizon, world_env
     from .shore import distance_outside
     from .stats import mean_interval
 
     module, meta = general_policy(policy_path)
     ev = params.evaluate
-    steps = max(params.general.episode_length,
-                int(np.ceil(params.general.episode_length * np.sqrt(region.area / params.world.region_area))))
+    steps = horizon(params.general, region, params.world.region_area)
     config = dataclasses.replace(params.general, episode_length=steps, sensors=SensorsConfig(**meta["sensor_config"]))
 
     def general(env):
@@ -245,9 +262,8 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     out = {"kind": "general policy", "policy": str(policy_path), "region": region.name, "n_agents": n_agents,
            "start": start, "lose": lose, "current": list(current) if current else None, "steps": steps,
            "episodes": ev.episodes, "baselines": {}}
-    policies = (("general", general), ("naive", baselines.naive_swarming(ev.naive)),
-                ("lloyd", baselines.lloyd(ev.lloyd)))
-    for name, policy in policies:
+    rivals, how = general_baselines(params, meta.get("baseline_gains"))
+    for name, policy in (("general", general), *rivals.items()):
         env = world_env(params, config, region, n_agents, ev.episodes, 0, reward=False)
         if current is not None:
             env.set_current(Current.uniform(np.broadcast_to(np.asarray(current, float), (ev.episodes, 2))))
@@ -259,9 +275,12 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
             out["coverage"] = coverage
             out["max_outside_m"] = float(distance_outside(region.polygon, trace["positions"]).max()) * region.scale
         else:
-            out["baselines"][name] = {"coverage": coverage, "gains": "hand-set"}
-    lloyd = out["baselines"]["lloyd"]["coverage"]["mean"]
+            out["baselines"][name] = {"coverage": coverage, "gains": how}
+    _, best = best_layout(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges)
+    out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
+    lloyd = out["baselines"]["lloyd_tuned" if "lloyd_tuned" in rivals else "lloyd"]["coverage"]["mean"]
     out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None
+    out["ratio_to_best"] = out["coverage"]["mean"] / best if best > 0 else None
     return out
 
 

@@ -92,8 +92,10 @@ class FleetPolicy(nn.Module):
         return torch.tanh(self.net(obs))
 
 
-def export_general(actor_path: str | Path, out: str | Path, sensitivity: float = 5.0) -> dict:
-    """Write a general policy (``general_train``'s ``actor.pt``) as TorchScript with its metadata."""
+def export_general(actor_path: str | Path, out: str | Path, sensitivity: float = 5.0,
+                   baseline_gains: dict | None = None) -> dict:
+    """Write a general policy (``general_train``'s ``actor.pt``) as TorchScript with its metadata, carrying
+    ``baseline_gains`` (naive swarming's and Lloyd's, tuned on its training worlds) when given."""
     from .shared_maddpg import SharedActor
 
     saved = artifacts.torch_load(actor_path, "general policy")
@@ -120,6 +122,9 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
         "scale": "simulation metres: the coverage radius is 0.5; real metres = simulation metres * radius_m / 0.5",
         "trained": trained,
     }
+    if baseline_gains:
+        metadata["baseline_gains"] = {k: {"gains": baseline_gains[k]["gains"], "study": baseline_gains[k].get("study")}
+                                      for k in ("naive_tuned", "lloyd_tuned")}
     save_policy(module, metadata, out)
     return metadata
 

@@ -48,7 +48,7 @@ class World:
 def world_env(params: Params, gc: GeneralConfig, region: Region, n_agents: int, n_envs: int, seed,
               reward: bool = True) -> CoverageEnv:
     world = dataclasses.replace(region_world(params, None), n_agents=n_agents, episode_length=gc.episode_length)
-    cr = dataclasses.replace(params.cr_reward, c2=gc.union_weight)
+    cr = dataclasses.replace(params.cr_reward, c1=gc.cover_weight, c2=gc.union_weight)
     return CoverageEnv(region, world, params.coverage, n_envs=n_envs, reward="cr" if reward else None, cr=cr,
                        observation="local", sensors_config=gc.sensors, wall=True, union_credit="difference",
                        seed=seed)
@@ -60,30 +60,51 @@ def coverage_area(params: Params) -> float:
     return 0.5 * c.edges * c.radius**2 * math.sin(2 * math.pi / c.edges)
 
 
+def horizon(gc: GeneralConfig, region: Region, region_area: float) -> int:
+    """Steps of an evaluation episode on ``region``: ``episode_length``, grown with the lake's linear size beyond
+    the paper's area (a lake 4× as large gets twice the steps), so that buoys can cross any lake."""
+    return max(gc.episode_length, int(np.ceil(gc.episode_length * np.sqrt(region.area / region_area))))
+
+
+def training_lakes(params: Params, gc: GeneralConfig) -> list[tuple[Region, int]]:
+    """(region, N) of the generated training lakes, the same for every seed."""
+    return [(lake_region(spec, coverage_area(params)), spec.n_agents)
+            for spec in training(gc.lakes, n_range=gc.lake_fleet, ratio_range=gc.lake_ratio)]
+
+
+def baseline_worlds(params: Params, gc: GeneralConfig) -> list[tuple[Region, int]]:
+    """The training distribution the baselines' gains are tuned on: every named region with every fleet size of
+    ``fleet``, and every training lake with its own."""
+    named = [(make_region(name, params.regions[name], params.world.region_area), n)
+             for name in gc.regions for n in gc.fleet]
+    return named + training_lakes(params, gc)
+
+
 def make_worlds(params: Params, gc: GeneralConfig, rng: np.random.Generator, n_envs: int) -> list[World]:
     """The named regions with a fleet size drawn from ``fleet`` each (from ``rng``), then the training lakes."""
     worlds = []
     for name in gc.regions:
         region = make_region(name, params.regions[name], params.world.region_area)
         worlds.append((region, int(rng.choice(gc.fleet))))
-    for spec in training(gc.lakes, n_range=gc.lake_fleet, ratio_range=gc.lake_ratio):
-        worlds.append((lake_region(spec, coverage_area(params)), spec.n_agents))
+    worlds += training_lakes(params, gc)
     return [World(region, n, world_env(params, gc, region, n, n_envs, np.random.SeedSequence(int(rng.integers(2**31)))))
             for region, n in worlds]
 
 
 class FleetReplay:
-    """A replay memory of one-step transitions of fleets up to ``n_max`` buoys, padded and masked."""
+    """A replay memory of m-step transitions of fleets up to ``n_max`` buoys, padded and masked."""
 
     def __init__(self, capacity: int, n_max: int, obs_dim: int):
         shapes = {"obs": (obs_dim,), "act": (2,), "rew": (), "next_obs": (obs_dim,), "pos": (2,), "next_pos": (2,)}
         self.data = {k: torch.zeros((capacity, n_max, *s)) for k, s in shapes.items()}
         self.live = torch.zeros((capacity, n_max), dtype=torch.bool)
         self.next_live = torch.zeros((capacity, n_max), dtype=torch.bool)
+        self.disc = torch.zeros(capacity)
         self.capacity, self.size, self.ptr = capacity, 0, 0
 
-    def add(self, live: np.ndarray, next_live: np.ndarray, **arrays: np.ndarray) -> None:
-        """E transitions of one fleet of N ≤ n_max buoys: arrays [E, N, ...], masks [E, N]."""
+    def add(self, live: np.ndarray, next_live: np.ndarray, disc: float, **arrays: np.ndarray) -> None:
+        """E transitions of one fleet of N ≤ n_max buoys: arrays [E, N, ...], masks [E, N], bootstrapping at
+        next_obs with ``disc`` (γᵐ for m steps)."""
         e, n = live.shape
         rows = (self.ptr + np.arange(e)) % self.capacity
         for key, value in arrays.items():
@@ -91,13 +112,49 @@ class FleetReplay:
             self.data[key][rows, :n] = torch.as_tensor(value, dtype=torch.float32)
         self.live[rows], self.next_live[rows] = False, False
         self.live[rows, :n], self.next_live[rows, :n] = torch.as_tensor(live), torch.as_tensor(next_live)
+        self.disc[rows] = disc
         self.ptr = (self.ptr + e) % self.capacity
         self.size = min(self.size + e, self.capacity)
 
-    def sample(self, rng: np.random.Generator, batch: int, gamma: float) -> FleetBatch:
+    def sample(self, rng: np.random.Generator, batch: int) -> FleetBatch:
         idx = torch.as_tensor(rng.integers(0, self.size, batch))
         return FleetBatch(**{k: v[idx] for k, v in self.data.items()}, live=self.live[idx],
-                          next_live=self.next_live[idx], disc=torch.full((batch,), gamma))
+                          next_live=self.next_live[idx], disc=self.disc[idx])
+
+
+class FleetNStep:
+    """Writes the steps of E environments of one fleet into a ``FleetReplay`` as n-step transitions (Sutton &
+    Barto §7.1; n = 1 is MADDPG's one-step transition): the step of time t is written once its n rewards are known,
+    r = Σ_{k<n} γᵏ r_{t+k}, bootstrapping at o_{t+n} with γⁿ and the buoys in service then; the episode's last step
+    writes the ones still open with the m < n rewards left. A buoy lost in between is not bootstrapped (its
+    rewards after the loss are 0, its future none)."""
+
+    def __init__(self, replay: FleetReplay, n: int, gamma: float):
+        self.replay, self.n, self.gamma = replay, n, gamma
+        self.open: list[dict] = []
+
+    def add(self, last: bool, **step) -> None:
+        """One step: live [E, N], obs, act, rew, pos, and next_obs, next_pos after it."""
+        self.open.append(step)
+        if len(self.open) == self.n:
+            self._write()
+        while last and self.open:
+            self._write()
+
+    def _write(self) -> None:
+        first, end = self.open[0], self.open[-1]
+        ret = first["rew"]
+        for k in range(1, len(self.open)):
+            ret = ret + self.gamma**k * self.open[k]["rew"]
+        self.replay.add(first["live"], end["live"], self.gamma ** len(self.open), obs=first["obs"], act=first["act"],
+                        rew=ret, next_obs=end["next_obs"], pos=first["pos"], next_pos=end["next_pos"])
+        self.open.pop(0)
+
+
+def on_shore(obs: np.ndarray, columns: list[str]) -> np.ndarray:
+    """Which buoys rest on the shore: a shore ray of length 0 (a buoy the wall stopped). obs [E, N, d] → [E, N]."""
+    rays = [k for k, name in enumerate(columns) if name.startswith("shore_")]
+    return obs[..., rays].min(axis=-1) <= 0.0
 
 
 def noise_sigma(gc: GeneralConfig, progress: float) -> float:
@@ -118,7 +175,8 @@ class GeneralTrainer:
         self.rng_sample = np.random.default_rng(streams[3])
         self.worlds = make_worlds(params, self.gc, np.random.default_rng(streams[0]), self.gc.n_envs)
         self.validation = self.validation_worlds(np.random.default_rng(streams[4]))
-        obs_dim = len(observation_columns("local", self.gc.sensors))
+        self.columns = observation_columns("local", self.gc.sensors)
+        obs_dim = len(self.columns)
         self.agent = SharedMADDPG(obs_dim, 2, self.gc.learner, seed=seed)
         self.replay = FleetReplay(self.gc.buffer_size, max(w.n_agents for w in self.worlds), obs_dim)
         self.rows: list[list] = []
@@ -141,6 +199,7 @@ class GeneralTrainer:
         t0, c0 = time.perf_counter(), time.process_time()
         for batch in tqdm(range(batches), disable=not self.progress, unit="batch"):
             sigma = noise_sigma(gc, batch / batches)
+            self.agent.scale_learning_rates(1.0 - (1.0 - gc.lr_end) * batch / batches)
             world = self.worlds[batch % len(self.worlds)]
             row = self.play(world, sigma)
             score = self.validate() if (batch + 1) % len(self.worlds) == 0 or batch == batches - 1 else math.nan
@@ -158,6 +217,7 @@ class GeneralTrainer:
             if rng.uniform() < gc.current_prob else None
         env.set_current(current)
         obs = env.reset(start=start)
+        writer = FleetNStep(self.replay, gc.n_step, gc.gamma)
         losses, q_abs = [], []
         for t in range(gc.episode_length):
             if lose and t == gc.episode_length // 2:
@@ -167,8 +227,9 @@ class GeneralTrainer:
             pos = env.pos.copy()
             act = self.agent.act(obs, sigma, self.noise).numpy()
             step = env.step(act)
-            self.replay.add(live, live, obs=obs, act=act, rew=step.reward * gc.reward_scale, next_obs=step.obs,
-                            pos=pos, next_pos=env.pos)
+            rew = step.reward * gc.reward_scale - gc.shore_penalty * (on_shore(step.obs, self.columns) & live)
+            writer.add(t == gc.episode_length - 1, live=live, obs=obs, act=act, rew=rew, pos=pos,
+                       next_obs=step.obs, next_pos=env.pos.copy())
             obs = step.obs
             for stats in self.learn(env.n_envs):
                 losses.append(stats["critic_loss"])
@@ -186,7 +247,7 @@ class GeneralTrainer:
         self.pending += transitions / gc.update_every
         while self.pending >= 1.0:
             self.pending -= 1.0
-            yield self.agent.update(self.replay.sample(self.rng_sample, gc.batch_size, gc.gamma))
+            yield self.agent.update(self.replay.sample(self.rng_sample, gc.batch_size))
 
     @torch.no_grad()
     def validate(self) -> float:

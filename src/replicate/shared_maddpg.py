@@ -7,7 +7,8 @@ centralised training with decentralised execution, kept; parameters shared as in
 - the actor μ(o_i) maps one buoy's local observation (``sensors``) to its action, the same network for all;
 - the critic scores buoy i's action with what the others do, whatever their number:
   Q(o_i, a_i, mean_{j ≠ i, live} φ(o_j, a_j, p_j − p_i)), φ an embedding of one other buoy seen from i
-  (its observation, action and relative position; a mean, so any N and any order);
+  (its observation, action and relative position; a mean, so any N and any order), over the whole fleet or,
+  with ``pool_range``, over the buoys within that distance of i;
 - each buoy's reward is its own (CR's eq. (5)–(6) with the difference credit), its loss its own TD error.
 
 Batches are ``[B, N, ...]`` padded to the largest fleet of the batch; ``live`` [B, N] marks the real, working
@@ -51,10 +52,11 @@ class PooledCritic(nn.Module):
     """Q_i for every buoy of a fleet of any size: obs [B, N, od], act [B, N, ad], pos [B, N, 2], live [B, N]
     → [B, N]. ``pooled`` alone gives the others' mean embedding [B, N, embed]."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: int, embed: int):
+    def __init__(self, obs_dim: int, act_dim: int, hidden: int, embed: int, pool_range: float = 0.0):
         super().__init__()
         self.phi = mlp([obs_dim + act_dim + 2, embed, embed])
         self.q = mlp([obs_dim + act_dim + embed, hidden, hidden, 1])
+        self.pool_range = pool_range
 
     def pooled(self, obs, act, pos, live) -> torch.Tensor:
         n = obs.shape[1]
@@ -62,6 +64,8 @@ class PooledCritic(nn.Module):
         other = torch.cat([obs, act], dim=-1)[:, None].expand(-1, n, -1, -1)  # [B, N (i), N (j), od + ad]
         e = self.phi(torch.cat([other, rel], dim=-1))  # [B, N, N, embed]
         others = live[:, None, :] & ~torch.eye(n, dtype=torch.bool, device=obs.device)  # j live, j ≠ i
+        if self.pool_range > 0:  # only the buoys near i (the difference credit depends on no others)
+            others = others & (rel.square().sum(-1) <= self.pool_range**2)
         w = others.to(e.dtype)
         return (e * w[..., None]).sum(dim=2) / w.sum(dim=2).clamp(min=1.0)[..., None]
 
@@ -94,7 +98,7 @@ class SharedMADDPG:
         with torch.random.fork_rng():  # the initial weights from ``seed``, leaving torch's global stream as it was
             torch.manual_seed(seed)
             self.actor = SharedActor(obs_dim, act_dim, cfg.hidden)
-            self.critic = PooledCritic(obs_dim, act_dim, cfg.hidden, cfg.embed)
+            self.critic = PooledCritic(obs_dim, act_dim, cfg.hidden, cfg.embed, cfg.pool_range)
         self.actor_target, self.critic_target = copy.deepcopy(self.actor), copy.deepcopy(self.critic)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
@@ -104,9 +108,10 @@ class SharedMADDPG:
         live, n_live = b.live.float(), b.live.float().sum().clamp(min=1.0)
 
         # Critic: y_i = r_i + γᵐ Q'(o'_i, μ'(o'_i), pool_j φ'(o'_j, μ'(o'_j), p'_j − p'_i))   (MADDPG's target)
-        with torch.no_grad():
+        with torch.no_grad():  # a buoy lost before the bootstrap step has no future: its target is its return
             next_act, _ = self.actor_target(b.next_obs)
-            y = b.rew + b.disc[:, None] * self.critic_target(b.next_obs, next_act, b.next_pos, b.next_live)
+            q_next = self.critic_target(b.next_obs, next_act, b.next_pos, b.next_live) * b.next_live
+            y = b.rew + b.disc[:, None] * q_next
         q = self.critic(b.obs, b.act, b.pos, b.live)
         critic_loss = (((q - y) ** 2) * live).sum() / n_live
         self.critic_opt.zero_grad()
@@ -131,6 +136,11 @@ class SharedMADDPG:
                 for p, tp in zip(net.parameters(), target.parameters()):
                     tp.lerp_(p, cfg.tau)
         return {"critic_loss": critic_loss.item(), "q_abs": ((q.detach().abs() * live).sum() / n_live).item()}
+
+    def scale_learning_rates(self, factor: float) -> None:
+        """Set the actor's and critic's learning rates to ``factor`` × their configured values."""
+        self.actor_opt.param_groups[0]["lr"] = factor * self.cfg.actor_lr
+        self.critic_opt.param_groups[0]["lr"] = factor * self.cfg.critic_lr
 
     @torch.no_grad()
     def act(self, obs, sigma: float, generator: torch.Generator) -> torch.Tensor:

@@ -30,7 +30,16 @@ from pathlib import Path
 import numpy as np
 
 from . import baselines, metrics
-from .config import Dimension, LloydConfig, NaiveConfig, Params, run_config, to_dict, with_values
+from .config import (
+    Dimension,
+    LloydConfig,
+    NaiveConfig,
+    Params,
+    StartsConfig,
+    run_config,
+    to_dict,
+    with_values,
+)
 from .env import CoverageEnv
 from .executor import map_jobs, parallel_slots
 from .geometry import region_key
@@ -175,6 +184,64 @@ def tune_baselines(params: Params, regions: dict[str, Region], executor: str = "
     """Every baseline kind on every region → ``{"KIND/REGION": tune_baseline(...)}``."""
     return {f"{kind}/{name}": tune_baseline(params, region, kind, executor)
             for kind in BASELINE_KINDS for name, region in regions.items()}
+
+
+# ---- the general policy's baselines: one set of gains for every lake -------------------------------------
+_GENERAL_WORLDS: dict[str, list] = {}
+
+
+def general_worlds(params: Params) -> list:
+    """(region, world env) of every world of ``general_train.baseline_worlds``, behind the wall, with half the
+    study's starts as environments; built once per process and setting (a lake's geometry takes seconds)."""
+    from .general_train import baseline_worlds, world_env
+
+    gc, starts = params.general, params.tuning.general_baselines.starts
+    key = study_name("worlds", gc, params.world, params.coverage, params.regions, starts)
+    if key not in _GENERAL_WORLDS:
+        _GENERAL_WORLDS[key] = [(region, world_env(params, gc, region, n, max(1, starts // 2), 0, reward=False))
+                                for region, n in baseline_worlds(params, gc)]
+    return _GENERAL_WORLDS[key]
+
+
+def general_baseline_coverage(kind: str, params: Params, gains: dict) -> float:
+    """Mean exact coverage at each world's evaluation horizon over every training world, half of the episodes
+    released in the corner patch and half scattered, starts drawn from ``tuning.starts_seed``."""
+    from .evaluate import rollout
+    from .general_train import horizon
+
+    policy, scores = baseline_policy(kind, gains, params), []
+    for k, (region, env) in enumerate(general_worlds(params)):
+        steps = horizon(params.general, region, params.world.region_area)
+        for start in ("corner", "random"):
+            live = rollout(env, policy, steps, params.tuning.starts_seed + k, StartsConfig(start))["live"]
+            scores.append(metrics.coverage_fraction(region.polygon, live, params.coverage.radius,
+                                                    params.coverage.edges).mean())
+    return float(np.mean(scores))
+
+
+def general_baseline_score(kind: str, params: Params, gains: dict) -> tuple[float, float]:
+    """One trial of the general baselines' study: (coverage, CPU seconds)."""
+    t0 = time.process_time()
+    return general_baseline_coverage(kind, params, gains), time.process_time() - t0
+
+
+def tune_general_baselines(params: Params, executor: str = "local") -> dict:
+    """Naive swarming's and Lloyd's studies on the general policy's training worlds →
+    ``{"naive_tuned": {gains, tuning_coverage, budget}, "lloyd_tuned": {...}}``."""
+    from .general_train import baseline_worlds
+
+    tc, gb = params.tuning, params.tuning.general_baselines
+    worlds = [(region_key(region.polygon), n) for region, n in baseline_worlds(params, params.general)]
+    out = {}
+    for kind, trials in (("naive", gb.naive_trials), ("lloyd", gb.lloyd_trials)):
+        search = getattr(tc.baselines, kind)
+        name = study_name(f"general-{kind}", search.space, tc.starts_seed, gb.starts, tc.sampler_seed, worlds,
+                          params.world, params.coverage, params.general.episode_length)
+        study = open_study(gb.storage, name, tc.sampler_seed)
+        run_trials(study, functools.partial(general_baseline_score, kind, params), search.space, trials, executor)
+        out[f"{kind}_tuned"] = {"gains": dict(study.best_params), "tuning_coverage": study.best_value,
+                                **budget(study), "storage": gb.storage}
+    return out
 
 
 # ---- a method's training values ------------------------------------------------------------------------
