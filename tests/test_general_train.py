@@ -159,3 +159,33 @@ def test_the_pipeline_keeps_the_best_validated_seed_and_skips_finished_ones(tmp_
     assert meta["baseline_gains"]["lloyd_tuned"]["gains"] == gains["lloyd_tuned"]["gains"]
     again = train_general(str(tmp_path / "params.yaml"), str(tmp_path / "policies"), str(tmp_path / "gains.json"), 1)
     assert all(r["skipped"] for r in again["runs"]) and again["kept_seed"] == first["kept_seed"]
+
+
+@pytest.mark.slow
+def test_the_evaluation_suite_scores_every_cell(two_runs, tmp_path):
+    """``pipeline.general.evaluate_general`` on a small suite: every lake × fleet × start × event once, the
+    policy and each baseline scored, the best layout above them all, no buoy outside the water."""
+    import yaml
+
+    from replicate.export import export_general
+    from replicate.pipeline.general import EVENTS, evaluate_general, suite_cells
+
+    from .conftest import ROOT
+
+    out, _ = two_runs
+    export_general(out / "run0" / "actor.pt", tmp_path / "general.pt")
+    raw = yaml.safe_load((ROOT / "params.yaml").read_text())
+    raw["general"]["suite"].update(held_out=1, named_fleets=[5], lake_fleets=[6], starts=["random"], episodes=2)
+    raw["regions"]["bedok"]["path"] = str(ROOT / raw["regions"]["bedok"]["path"])
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+    result = evaluate_general(str(tmp_path / "params.yaml"), str(tmp_path / "general.pt"), str(tmp_path / "g.json"), 1)
+    cells = {(c["region"], c["n_agents"], c["event"]): c for c in result["cells"]}
+    from replicate.config import load_params
+
+    assert len(cells) == len(suite_cells(load_params(tmp_path / "params.yaml"))) == 3 * len(EVENTS) + 1
+    assert cells[("square", 5, "lose")]["lose"] == 1 and cells[("bedok", 5, "current")]["lose"] == 0
+    for c in result["cells"]:
+        best = c["baselines"]["best_layout"]["coverage"]["mean"]
+        assert c["max_outside_m"] == 0.0 and c["coverage"]["n"] == 2
+        assert all(b["coverage"]["mean"] <= best + 0.01 for b in c["baselines"].values())
+    assert json.loads((tmp_path / "g.json").read_text())["cells"] == result["cells"]

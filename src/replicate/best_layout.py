@@ -8,6 +8,8 @@ below ``tolerance``. Every score is exact: A(∪Cov ∩ Reg) by shapely, vectori
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import shapely
 from shapely.geometry import Polygon
@@ -67,3 +69,14 @@ def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spaci
         if not improved:
             step /= 2
     return xy, covered_area(region, xy, radius, edges) / region.area
+
+
+@functools.lru_cache(maxsize=64)
+def _best_coverage(region_wkb: bytes, n_agents: int, radius: float, edges: int) -> float:
+    return best_layout(shapely.from_wkb(region_wkb), n_agents, radius, edges)[1]
+
+
+def best_coverage(region: Polygon, n_agents: int, radius: float, edges: int) -> float:
+    """The best layout's coverage fraction, computed once per region and fleet in a process (an evaluation asks
+    for it under every start and event)."""
+    return _best_coverage(region.wkb, n_agents, radius, edges)

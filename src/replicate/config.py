@@ -131,6 +131,16 @@ def check_general(g: GeneralConfig, regions: dict) -> None:
         within(getattr(g.learner, key), f"general.learner.{key}", 0, open_lo=True)
     within(g.learner.tau, "general.learner.tau", 0, 1, open_lo=True)
     within(g.learner.pool_range, "general.learner.pool_range", 0)
+    su = g.suite
+    for n in (*su.named_fleets, *su.lake_fleets):
+        within(n, "general.suite fleets", 2, MAX_AGENTS)
+    for start in su.starts:
+        if start not in ("corner", "random"):
+            raise ConfigError(f"general.suite.starts: 'corner' or 'random', got {start!r}")
+    within(su.lose_fraction, "general.suite.lose_fraction", 0, 1, open_lo=True)
+    within(su.current, "general.suite.current", 0)
+    within(su.episodes, "general.suite.episodes", 1)
+    within(su.held_out, "general.suite.held_out", 0)
 
 
 def check_seed(seed: int, where: str = "--seed") -> int:
@@ -454,6 +464,19 @@ class SharedLearnerConfig:
 
 
 @dataclass(frozen=True)
+class SuiteConfig:
+    """The general policy's evaluation suite (``pipeline.general``): lakes × fleets × starts × events."""
+
+    held_out: int  # generated lakes of ``lakes.held_out``, never trained on
+    named_fleets: tuple[int, ...]  # N on the square, the rectangle and Bedok (each at the paper's density)
+    lake_fleets: tuple[int, ...]  # N on every held-out lake (each at its own density)
+    starts: tuple[str, ...]
+    lose_fraction: float  # the "lose" event: this share of the fleet lost at T/2
+    current: float  # the "current" event: a uniform drift of this speed, m/s
+    episodes: int  # per cell
+
+
+@dataclass(frozen=True)
 class GeneralConfig:
     """One policy for every lake (``general_train``): the worlds it trains on, the events, the schedule."""
 
@@ -487,6 +510,7 @@ class GeneralConfig:
     seeds: tuple[int, ...]
     sensors: SensorsConfig
     learner: SharedLearnerConfig
+    suite: SuiteConfig
 
 
 @dataclass(frozen=True)

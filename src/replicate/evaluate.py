@@ -243,7 +243,7 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     any episode."""
     import dataclasses
 
-    from .best_layout import best_layout
+    from .best_layout import best_coverage
     from .config import SensorsConfig
     from .currents import Current
     from .general_train import horizon, world_env
@@ -276,7 +276,7 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
             out["max_outside_m"] = float(distance_outside(region.polygon, trace["positions"]).max()) * region.scale
         else:
             out["baselines"][name] = {"coverage": coverage, "gains": how}
-    _, best = best_layout(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges)
+    best = best_coverage(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges)
     out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
     lloyd = out["baselines"]["lloyd_tuned" if "lloyd_tuned" in rivals else "lloyd"]["coverage"]["mean"]
     out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None

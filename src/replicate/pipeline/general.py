@@ -1,5 +1,5 @@
-"""The general policy's training: every seed of ``general.seeds`` in a process of its own, the best-validated one
-exported as the policy every lake gets.
+"""The general policy's stages: every seed of ``general.seeds`` trained in a process of its own, the
+best-validated one exported as the policy every lake gets; then that policy, zero-shot, on the evaluation suite.
 
 Layout: ``OUT/runs/general-sSEED/{actor.pt, curve.csv.gz, run.json}`` (``general_train``), ``OUT/general.pt`` (the
 exported policy of the seed with the best validation coverage, carrying the baselines' gains of
@@ -9,15 +9,21 @@ already finished with identical settings is kept, so adding seeds trains only th
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
+
+from shapely import affinity
 
 from .. import artifacts
 from ..config import load_params, to_dict
 from ..executor import map_jobs
 from ..export import export_general
 from ..general_train import GeneralTrainer
+from ..lakes import held_out, lake_region
+from ..regions import Region, make_region
 from ..train import training_process
 
 GENERAL_VERSION = 1  # raised when the general training's arithmetic changes: older runs are trained again
@@ -25,7 +31,8 @@ GENERAL_VERSION = 1  # raised when the general training's arithmetic changes: ol
 
 def general_identity(params, seed: int) -> dict:
     """What makes two general runs the same run: the version, the seed and every value they train with."""
-    return {"general_version": GENERAL_VERSION, "seed": seed, "general": to_dict(params.general),
+    trained = {k: v for k, v in to_dict(params.general).items() if k not in ("seeds", "suite")}  # not its evaluation
+    return {"general_version": GENERAL_VERSION, "seed": seed, "general": trained,
             "world": to_dict(params.world), "coverage": to_dict(params.coverage),
             "cr_reward": to_dict(params.cr_reward), "regions": to_dict(params.regions)}
 
@@ -74,3 +81,84 @@ def train_general(params_path: str, out_dir: str, gains_path: str | None, worker
                                "wall_seconds")} | {"skipped": r.get("skipped", False)} for r in runs]}
     artifacts.write_json(out / "summary.json", summary)
     return summary
+
+
+# ---- the evaluation suite: every lake × fleet × start × event ----------------------------------------------
+EVENTS = ("none", "lose", "current")
+
+
+@dataclass(frozen=True)
+class SuiteCell:
+    """One cell of the generalisation table: a lake (a named region or a held-out lake), a fleet, a start, an
+    event (``EVENTS``: still water, a share of the fleet lost at T/2, a uniform drift)."""
+
+    region: str
+    n_agents: int
+    start: str
+    event: str
+
+
+def suite_lakes(params) -> dict[str, tuple[Region, int]]:
+    """The suite's lakes → (region, the fleet it is drawn for): the square, the rectangle and Bedok for the paper's
+    9 buoys, then ``general.suite.held_out`` lakes of ``lakes.held_out`` for their own N."""
+    from ..general_train import coverage_area
+
+    named = {name: (make_region(name, params.regions[name], params.world.region_area), params.world.n_agents)
+             for name in ("square", "rectangle", "bedok")}
+    lakes = {(r := lake_region(spec, coverage_area(params))).name: (r, spec.n_agents)
+             for spec in held_out(params.general.suite.held_out)}
+    return named | lakes
+
+
+def at_density(region: Region, drawn_for: int, n_agents: int) -> Region:
+    """``region`` scaled for ``n_agents`` buoys at the density it was drawn for (the same N·A(Cov)/A(Reg))."""
+    s = (n_agents / drawn_for) ** 0.5
+    return dataclasses.replace(region, polygon=affinity.scale(region.polygon, s, s, origin=(0, 0)),
+                               scale=region.scale / s)
+
+
+def suite_cells(params) -> list[SuiteCell]:
+    su, named = params.general.suite, ("square", "rectangle", "bedok")
+    cells = []
+    for name in suite_lakes(params):
+        fleets, events = (su.named_fleets, EVENTS) if name in named else (su.lake_fleets, ("none",))
+        cells += [SuiteCell(name, n, start, event) for n in fleets for start in su.starts for event in events]
+    return cells
+
+
+def _evaluate_lake(job: dict) -> list[dict]:
+    """Every cell of one lake and fleet (a job of ``evaluate_general``): the policy and its baselines
+    (``evaluate.evaluate_policy``), the best layout computed once per fleet left in service."""
+    from ..evaluate import evaluate_policy
+
+    training_process()
+    params = load_params(job["params"])
+    su = params.general.suite
+    params = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=su.episodes))
+    region, drawn_for = suite_lakes(params)[job["region"]]
+    region = at_density(region, drawn_for, job["n_agents"])
+    out = []
+    for cell in map(lambda c: SuiteCell(**c), job["cells"]):
+        lose = int(cell.n_agents * su.lose_fraction) if cell.event == "lose" else 0
+        current = (su.current, 0.0) if cell.event == "current" else None
+        result = evaluate_policy(job["policy"], region, params, cell.n_agents, cell.start, lose, current)
+        out.append({**dataclasses.asdict(cell), "lose": lose, "coverage": result["coverage"],
+                    "baselines": result["baselines"], "max_outside_m": result["max_outside_m"],
+                    "steps": result["steps"]})
+    return out
+
+
+def evaluate_general(params_path: str, policy: str, out: str, workers: int, executor: str = "local") -> dict:
+    """The general policy on every cell of the suite (``suite_cells``), one job per lake and fleet → ``out``
+    (JSON: the cells, with the policy's and every baseline's coverage)."""
+    params = load_params(params_path)
+    groups: dict[tuple[str, int], list[dict]] = {}
+    for cell in suite_cells(params):
+        groups.setdefault((cell.region, cell.n_agents), []).append(dataclasses.asdict(cell))
+    jobs = [{"params": params_path, "policy": policy, "region": r, "n_agents": n, "cells": cells}
+            for (r, n), cells in sorted(groups.items(), key=lambda kv: -kv[0][1])]  # the largest fleets first
+    t0 = time.perf_counter()
+    cells = [c for group in map_jobs(_evaluate_lake, jobs, executor, workers) for c in group]
+    result = {"policy": policy, "wall_seconds": round(time.perf_counter() - t0, 1), "cells": cells}
+    artifacts.write_json(out, result)
+    return result
