@@ -159,3 +159,27 @@ def test_an_unfinished_matrix_is_named_at_the_top(params, tmp_path):
                         str(tmp_path / "R.md"), {})
     head = text.split("## Seeds")[0]
     assert "Incomplete" in head and "`tuned/cr/square`: 3 of 10 seeds" in head and "`paper/sw/bedok`: 0 of 5" in head
+
+
+def test_the_general_policys_bars_are_counted_per_cell(params):
+    """``report.general``: each bar counts the cells that meet it; one cell short fails the bar."""
+    from replicate.pipeline.report import general_section, general_verdicts
+
+    def cell(region, event, general, lloyd, best=0.78, naive=0.7, outside=0.0):
+        rivals = {"naive_tuned": naive, "lloyd_tuned": lloyd, "geodesic_lloyd": lloyd, "best_layout": best}
+        return {"region": region, "n_agents": 9, "start": "corner", "event": event, "max_outside_m": outside,
+                "coverage": {"mean": general, "lo": general - 0.01, "hi": general + 0.01, "n": 20},
+                "baselines": {k: {"coverage": {"mean": v}} for k, v in rivals.items()}}
+
+    cells = [cell("square", "none", 0.77, 0.775), cell("square", "lose", 0.50, 0.52),
+             cell("square", "current", 0.70, 0.775), cell("lake-a", "none", 0.66, 0.60, best=0.67),
+             cell("lake-b", "none", 0.60, 0.70, best=0.72, outside=0.01)]
+    verdicts = {bar: (n, v) for bar, n, v in general_verdicts(cells, params.report.general)}
+    assert verdicts["still water: ≥ 98% of lloyd_tuned"] == ("2 of 3", "not met")
+    assert verdicts["lakes where lloyd_tuned is ≥ 0.05 below the best layout: above lloyd_tuned"] == ("1 of 1", "met")
+    assert verdicts["a third lost at T/2: ≥ 95% of what lloyd_tuned re-covers"] == ("1 of 1", "met")
+    assert verdicts["drift: ≥ 90% of its own still-water coverage"] == ("1 of 1", "met")
+    assert verdicts["no buoy ever outside the water"] == ("4 of 5", "not met")
+    text = "\n".join(general_section(params, {"policy": "policies/general.pt", "cells": cells}))
+    assert "| square | 9 | corner | none | 0.770 [0.760, 0.780] |" in text
+    assert "| 2 held-out lakes (mean) | 9 | corner | none | 0.630 (0.600-0.660) |" in text

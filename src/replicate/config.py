@@ -418,6 +418,17 @@ class Target:
 
 
 @dataclass(frozen=True)
+class GeneralTargets:
+    """The general policy's bars on the evaluation suite, as fractions of its yardsticks' coverage."""
+
+    of_lloyd: float  # in still water, every cell at least this fraction of lloyd_tuned ...
+    of_best: float  # ... and of the best layout (and above naive_tuned)
+    narrow_gap: float  # a lake where lloyd_tuned falls this far short of the best layout: the policy must beat it
+    lose_of_lloyd: float  # after a loss: at least this fraction of what lloyd_tuned re-covers
+    current_of_still: float  # in the drift: at least this fraction of its own still-water coverage
+
+
+@dataclass(frozen=True)
 class ReportConfig:
     """The verdict rules, fixed before the numbers (REPORT.md prints each beside its verdict)."""
 
@@ -434,6 +445,7 @@ class ReportConfig:
     sensitivity: tuple[float, ...]  # factors applied to the margins and tolerances for the sensitivity column
     targets: dict[str, Target]  # region → tuned CR-MARL's coverage bar, on every seed
     target_seconds: float  # one core's seconds per 10,000-episode run
+    general: GeneralTargets
 
 
 @dataclass(frozen=True)

@@ -270,7 +270,92 @@ def budgets(rules_params, tuning: dict) -> list[str]:
         gains = ", ".join(f"{k} {v:.3g}" for k, v in b["gains"].items())
         rows.append(f"| {key} gains | Optuna TPE `{b['study']}` | {b['trials']} trials | {b['cpu_seconds']:,.0f} | "
                     f"{gains}; tuning coverage {b['tuning_coverage']:.3f} |")
+    for key, b in sorted(tuning.get("general_baselines", {}).items()):
+        gains = ", ".join(f"{k} {v:.3g}" for k, v in b["gains"].items())
+        rows.append(f"| {key} gains for every lake | Optuna TPE `{b['study']}` on the general policy's training "
+                    f"worlds | {b['trials']} trials | {b['cpu_seconds']:,.0f} | {gains}; tuning coverage "
+                    f"{b['tuning_coverage']:.3f} |")
     return rows
+
+
+NAMED = ("square", "rectangle", "bedok")
+YARDSTICKS = ("naive_tuned", "lloyd_tuned", "geodesic_lloyd", "best_layout")
+
+
+def general_verdicts(cells: list[dict], t) -> list[tuple[str, str, str]]:
+    """(bar, how many cells meet it, verdict) of the general policy's targets (``report.general``, ``t``)."""
+    def cov(c, name=None):
+        return c["coverage"]["mean"] if name is None else c["baselines"][name]["coverage"]["mean"]
+
+    still = [c for c in cells if c["event"] == "none"]
+    key = {(c["region"], c["n_agents"], c["start"]): c for c in still}
+    checks = [
+        (f"still water: ≥ {t.of_lloyd:.0%} of lloyd_tuned", still,
+         [cov(c) >= t.of_lloyd * cov(c, "lloyd_tuned") for c in still]),
+        ("still water: above naive_tuned", still, [cov(c) > cov(c, "naive_tuned") for c in still]),
+        (f"still water: ≥ {t.of_best:.0%} of the best layout", still,
+         [cov(c) >= t.of_best * cov(c, "best_layout") for c in still]),
+        (f"lakes where lloyd_tuned is ≥ {t.narrow_gap} below the best layout: above lloyd_tuned",
+         narrow := [c for c in still if cov(c, "best_layout") - cov(c, "lloyd_tuned") >= t.narrow_gap],
+         [cov(c) > cov(c, "lloyd_tuned") for c in narrow]),
+        (f"a third lost at T/2: ≥ {t.lose_of_lloyd:.0%} of what lloyd_tuned re-covers",
+         lose := [c for c in cells if c["event"] == "lose"],
+         [cov(c) >= t.lose_of_lloyd * cov(c, "lloyd_tuned") for c in lose]),
+        (f"drift: ≥ {t.current_of_still:.0%} of its own still-water coverage",
+         drift := [c for c in cells if c["event"] == "current"],
+         [cov(c) >= t.current_of_still * cov(key[(c["region"], c["n_agents"], c["start"])]) for c in drift]),
+        ("no buoy ever outside the water", cells, [c["max_outside_m"] == 0 for c in cells]),
+    ]
+    return [(bar, f"{sum(ok)} of {len(which)}", "met" if all(ok) else "not met") for bar, which, ok in checks
+            if which]
+
+
+def general_rows(cells: list[dict]) -> list[str]:
+    """Markdown rows: every cell of the named regions, then the held-out lakes pooled per fleet and start (mean
+    over lakes, and the worst lake's ratio to lloyd_tuned)."""
+    def row(label, n, start, event, general, rivals, ratio):
+        return (f"| {label} | {n} | {start} | {event} | {general} | "
+                + " | ".join(f"{v:.3f}" for v in rivals) + f" | {ratio} |")
+
+    rows = []
+    for c in cells:
+        if c["region"] in NAMED:
+            rivals = [c["baselines"][k]["coverage"]["mean"] for k in YARDSTICKS]
+            rows.append(row(c["region"], c["n_agents"], c["start"], c["event"], fmt(c["coverage"]), rivals,
+                            f"{c['coverage']['mean'] / rivals[1]:.3f}"))
+    lakes: dict[tuple, list[dict]] = {}
+    for c in cells:
+        if c["region"] not in NAMED:
+            lakes.setdefault((c["n_agents"], c["start"], c["event"]), []).append(c)
+    for (n, start, event), group in sorted(lakes.items()):
+        general = [c["coverage"]["mean"] for c in group]
+        rivals = [sum(c["baselines"][k]["coverage"]["mean"] for c in group) / len(group) for k in YARDSTICKS]
+        ratios = [c["coverage"]["mean"] / c["baselines"]["lloyd_tuned"]["coverage"]["mean"] for c in group]
+        rows.append(row(f"{len(group)} held-out lakes (mean)", n, start, event,
+                        f"{sum(general) / len(general):.3f} ({min(general):.3f}-{max(general):.3f})", rivals,
+                        f"{sum(ratios) / len(ratios):.3f} (worst {min(ratios):.3f})"))
+    return rows
+
+
+def general_section(params, general: dict) -> list[str]:
+    cells, t = general["cells"], params.report.general
+    su = params.general.suite
+    lines = ["## One policy for every lake", "",
+             f"The general policy (`{general['policy']}`, one network trained once on the training worlds of "
+             "`general`, local sensors only), zero-shot on lakes it never trained on, behind the shore wall: the "
+             f"square, the rectangle and Bedok at N ∈ {list(su.named_fleets)} (each at the paper's density), "
+             f"{su.held_out} held-out generated lakes at N ∈ {list(su.lake_fleets)} (each at its own density); "
+             "starts in the corner patch or scattered; events: none, "
+             f"{su.lose_fraction:.0%} of the fleet lost at T/2 (coverage of the rest at T), a uniform drift of "
+             f"{su.current} m/s. {su.episodes} episodes per cell from the evaluation seed; the interval is over "
+             "episodes of the one policy. naive_tuned and lloyd_tuned carry the gains tuned once on the "
+             "training worlds (`tuning.general_baselines`), geodesic Lloyd Lloyd's; the best layout is the "
+             "offline limit for the buoys in service.", "",
+             "| bar (`report.general`) | cells meeting it | verdict |", "|---|---|---|",
+             *[f"| {bar} | {n} | **{v}** |" for bar, n, v in general_verdicts(cells, t)], "",
+             "| lake | N | start | event | general policy | naive_tuned | lloyd_tuned | geodesic Lloyd | best layout | "
+             "general / lloyd_tuned |", "|---|---|---|---|---|---|---|---|---|---|", *general_rows(cells), ""]
+    return lines
 
 
 def robustness_rows(summary: dict, regions: list[str], scenarios: list[str]) -> list[str]:
@@ -341,8 +426,9 @@ def missing_runs(params, summary: dict) -> list[str]:
 
 
 def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict[str, str], figures: list[str],
-                 out: str, stage_times: dict) -> str:
+                 out: str, stage_times: dict, general_path: str | None = None) -> str:
     summary = json.loads(Path(summary_path).read_text())
+    general = json.loads(Path(general_path).read_text()) if general_path and Path(general_path).exists() else None
     timing = json.loads(Path(timing_path).read_text()) if Path(timing_path).exists() else {}
     tuning = {k: json.loads(Path(p).read_text()) for k, p in tuning_paths.items() if Path(p).exists()}
     rules = params.report
@@ -409,6 +495,8 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
                               for n, s in spec.items()) + ".", "",
                   "| region | policy | " + " | ".join(f"`{s}`" for s in scenarios) + " |",
                   "|---|---|" + "---|" * len(scenarios), *rrows, ""]
+    if general is not None:
+        lines += general_section(params, general)
     ab = ablation_rows(summary)
     lines += ["## Ablation of `tuned` (leave one out)", ""]
     if ab:
