@@ -246,9 +246,9 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     from .best_layout import best_coverage
     from .config import SensorsConfig
     from .currents import Current
-    from .general_train import horizon, world_env
     from .shore import distance_outside
     from .stats import mean_interval
+    from .worlds import horizon, world_env
 
     module, meta = general_policy(policy_path)
     ev = params.evaluate

@@ -193,7 +193,7 @@ _GENERAL_WORLDS: dict[str, list] = {}
 def general_worlds(params: Params) -> list:
     """(region, world env) of every world of ``general_train.baseline_worlds``, behind the wall, with half the
     study's starts as environments; built once per process and setting (a lake's geometry takes seconds)."""
-    from .general_train import baseline_worlds, world_env
+    from .worlds import baseline_worlds, world_env
 
     gc, starts = params.general, params.tuning.general_baselines.starts
     key = study_name("worlds", gc, params.world, params.coverage, params.regions, starts)
@@ -207,7 +207,7 @@ def general_baseline_coverage(kind: str, params: Params, gains: dict) -> float:
     """Mean exact coverage at each world's evaluation horizon over every training world, half of the episodes
     released in the corner patch and half scattered, starts drawn from ``tuning.starts_seed``."""
     from .evaluate import rollout
-    from .general_train import horizon
+    from .worlds import horizon
 
     policy, scores = baseline_policy(kind, gains, params), []
     for k, (region, env) in enumerate(general_worlds(params)):
@@ -228,7 +228,7 @@ def general_baseline_score(kind: str, params: Params, gains: dict) -> tuple[floa
 def tune_general_baselines(params: Params, executor: str = "local") -> dict:
     """Naive swarming's and Lloyd's studies on the general policy's training worlds →
     ``{"naive_tuned": {gains, tuning_coverage, budget}, "lloyd_tuned": {...}}``."""
-    from .general_train import baseline_worlds
+    from .worlds import baseline_worlds
 
     tc, gb = params.tuning, params.tuning.general_baselines
     worlds = [(region_key(region.polygon), n) for region, n in baseline_worlds(params, params.general)]

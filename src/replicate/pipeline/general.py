@@ -101,7 +101,7 @@ class SuiteCell:
 def suite_lakes(params) -> dict[str, tuple[Region, int]]:
     """The suite's lakes → (region, the fleet it is drawn for): the square, the rectangle and Bedok for the paper's
     9 buoys, then ``general.suite.held_out`` lakes of ``lakes.held_out`` for their own N."""
-    from ..general_train import coverage_area
+    from ..worlds import coverage_area
 
     named = {name: (make_region(name, params.regions[name], params.world.region_area), params.world.n_agents)
              for name in ("square", "rectangle", "bedok")}
