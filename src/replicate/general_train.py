@@ -2,8 +2,9 @@
 
 The worlds (``worlds``): the named regions of ``general.regions`` and ``general.lakes`` generated lakes, each
 with N buoys behind the shore wall, observing only their local sensors (``observation: local``), rewarded by CR's
-eq. (5)-(6) with the difference credit. Each batch of E episodes plays in one world, the worlds in turn; a batch may start scattered
-over the water instead of in the corner patch, lose up to a third of its buoys half-way, or drift in a current.
+eq. (5)-(6) with the difference credit. Each batch of E episodes plays in one world, the worlds in turn; a batch
+may start scattered over the water instead of in the corner patch, lose up to a third of its buoys half-way, or
+drift in a current.
 Transitions of fleets of different sizes share one replay memory, padded to the largest fleet and masked.
 
 The run keeps the actor that covered best on its validation starts (every named region from the corner, each
