@@ -104,3 +104,26 @@ def test_a_pool_range_leaves_far_buoys_out_of_the_critic():
     for critic, same in ((near, True), (whole, False)):
         q, q_moved = critic(b.obs, b.act, b.pos, b.live), critic(b.obs, b.act, moved, b.live)
         assert torch.equal(q[:, :4], q_moved[:, :4]) == same
+
+
+def test_pooling_the_k_nearest_is_pooling_all_when_k_covers_the_fleet_and_ignores_the_rest_otherwise():
+    torch.manual_seed(3)
+    b = fleet(6, batch=4, live=torch.tensor([[True] * 6] * 3 + [[True, True, True, False, False, False]]))
+    whole, k5, k2 = PooledCritic(OD, AD, 64, 32), PooledCritic(OD, AD, 64, 32, pool_neighbours=5), \
+        PooledCritic(OD, AD, 64, 32, pool_neighbours=2)
+    k5.load_state_dict(whole.state_dict())
+    k2.load_state_dict(whole.state_dict())
+    assert torch.equal(whole.pooled(b.obs, b.act, b.pos, b.live), k5.pooled(b.obs, b.act, b.pos, b.live))
+    # with K = 2, moving each buoy's third-nearest and further ones away changes nothing for it
+    d = (b.pos[:, :, None] - b.pos[:, None]).square().sum(-1)
+    d = d.masked_fill(torch.eye(6, dtype=torch.bool) | ~b.live[:, None, :], float("inf"))
+    i, near = 0, d[:, 0].topk(2, largest=False).indices  # buoy 0's two nearest live others, per sample
+    moved = b.pos.clone()
+    for s in range(4):
+        for j in range(1, 6):
+            if j not in near[s]:
+                moved[s, j] += 100.0
+    before, after = k2.pooled(b.obs, b.act, b.pos, b.live), k2.pooled(b.obs, b.act, moved, b.live)
+    assert torch.allclose(before[:, i], after[:, i], atol=1e-6)
+    assert not torch.allclose(whole.pooled(b.obs, b.act, b.pos, b.live)[:, i],
+                              whole.pooled(b.obs, b.act, moved, b.live)[:, i])

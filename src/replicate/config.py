@@ -131,6 +131,7 @@ def check_general(g: GeneralConfig, regions: dict) -> None:
         within(getattr(g.learner, key), f"general.learner.{key}", 0, open_lo=True)
     within(g.learner.tau, "general.learner.tau", 0, 1, open_lo=True)
     within(g.learner.pool_range, "general.learner.pool_range", 0)
+    within(g.learner.pool_neighbours, "general.learner.pool_neighbours", 0, MAX_AGENTS)
     su = g.suite
     for n in (*su.named_fleets, *su.lake_fleets):
         within(n, "general.suite fleets", 2, MAX_AGENTS)
@@ -473,6 +474,7 @@ class SharedLearnerConfig:
     grad_clip: float = 0.5
     actor_reg: float = 1e-3  # on the pre-tanh action, as openai/maddpg
     pool_range: float = 0.0  # m: the critic pools only the others this close (0: every other buoy of the fleet)
+    pool_neighbours: int = 0  # the critic pools only each buoy's K nearest others (0: all of them)
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,8 @@ centralised training with decentralised execution, kept; parameters shared as in
 - the critic scores buoy i's action with what the others do, whatever their number:
   Q(o_i, a_i, mean_{j ≠ i, live} φ(o_j, a_j, p_j − p_i)), φ an embedding of one other buoy seen from i
   (its observation, action and relative position; a mean, so any N and any order), over the whole fleet or,
-  with ``pool_range``, over the buoys within that distance of i;
+  with ``pool_range``, over the buoys within that distance of i, and with ``pool_neighbours`` over its K nearest
+  (φ then runs on [B, N, K], not [B, N, N]: the update's cost grows with N, not N²);
 - each buoy's reward is its own (CR's eq. (5)–(6) with the difference credit), its loss its own TD error.
 
 Batches are ``[B, N, ...]`` padded to the largest fleet of the batch; ``live`` [B, N] marks the real, working
@@ -52,20 +53,27 @@ class PooledCritic(nn.Module):
     """Q_i for every buoy of a fleet of any size: obs [B, N, od], act [B, N, ad], pos [B, N, 2], live [B, N]
     → [B, N]. ``pooled`` alone gives the others' mean embedding [B, N, embed]."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: int, embed: int, pool_range: float = 0.0):
+    def __init__(self, obs_dim: int, act_dim: int, hidden: int, embed: int, pool_range: float = 0.0,
+                 pool_neighbours: int = 0):
         super().__init__()
         self.phi = mlp([obs_dim + act_dim + 2, embed, embed])
         self.q = mlp([obs_dim + act_dim + embed, hidden, hidden, 1])
-        self.pool_range = pool_range
+        self.pool_range, self.pool_neighbours = pool_range, pool_neighbours
 
     def pooled(self, obs, act, pos, live) -> torch.Tensor:
         n = obs.shape[1]
         rel = pos[:, None, :, :] - pos[:, :, None, :]  # [B, N (i), N (j), 2]: p_j − p_i
         other = torch.cat([obs, act], dim=-1)[:, None].expand(-1, n, -1, -1)  # [B, N (i), N (j), od + ad]
-        e = self.phi(torch.cat([other, rel], dim=-1))  # [B, N, N, embed]
         others = live[:, None, :] & ~torch.eye(n, dtype=torch.bool, device=obs.device)  # j live, j ≠ i
         if self.pool_range > 0:  # only the buoys near i (the difference credit depends on no others)
             others = others & (rel.square().sum(-1) <= self.pool_range**2)
+        if 0 < self.pool_neighbours < n - 1:  # only i's K nearest: φ on [B, N, K], not [B, N, N]
+            far = rel.square().sum(-1).masked_fill(~others, torch.inf)
+            nearest, idx = far.topk(self.pool_neighbours, dim=2, largest=False)  # [B, N, K]
+            others = torch.isfinite(nearest)
+            rel = rel.gather(2, idx[..., None].expand(-1, -1, -1, rel.shape[-1]))
+            other = other.gather(2, idx[..., None].expand(-1, -1, -1, other.shape[-1]))
+        e = self.phi(torch.cat([other, rel], dim=-1))  # [B, N, N or K, embed]
         w = others.to(e.dtype)
         return (e * w[..., None]).sum(dim=2) / w.sum(dim=2).clamp(min=1.0)[..., None]
 
@@ -98,7 +106,8 @@ class SharedMADDPG:
         with torch.random.fork_rng():  # the initial weights from ``seed``, leaving torch's global stream as it was
             torch.manual_seed(seed)
             self.actor = SharedActor(obs_dim, act_dim, cfg.hidden)
-            self.critic = PooledCritic(obs_dim, act_dim, cfg.hidden, cfg.embed, cfg.pool_range)
+            self.critic = PooledCritic(obs_dim, act_dim, cfg.hidden, cfg.embed, cfg.pool_range,
+                                       cfg.pool_neighbours)
         self.actor_target, self.critic_target = copy.deepcopy(self.actor), copy.deepcopy(self.critic)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
