@@ -191,7 +191,7 @@ _GENERAL_WORLDS: dict[str, list] = {}
 
 
 def general_worlds(params: Params) -> list:
-    """(region, world env) of every world of ``general_train.baseline_worlds``, behind the wall, with half the
+    """(region, world env) of every world of ``worlds.baseline_worlds``, behind the wall, with half the
     study's starts as environments; built once per process and setting (a lake's geometry takes seconds)."""
     from .worlds import baseline_worlds, world_env
 
