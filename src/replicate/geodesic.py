@@ -3,9 +3,10 @@
 Lloyd's cells (``baselines.voronoi_centroids``) are Euclidean: on a lake with arms, a buoy's cell reaches across a
 spit of land into water it cannot sail to straight, and its centroid may lie on land. Geodesic cells measure the
 distance a buoy would sail, through the water only (Lloyd's algorithm with the geodesic distance, the usual
-extension of coverage control to non-convex regions). Here the water is a grid of points ``spacing`` apart; each point links to its 16 neighbours where the
-segment between them stays in the water; a multi-source Dijkstra (``scipy.sparse.csgraph``) from the buoys' nearest
-points gives every point its nearest buoy (the cells), its distance through the water, and the shortest path back.
+extension of coverage control to non-convex regions). Here the water is a grid of points ``spacing`` apart; each
+point links to its 16 neighbours where the segment between them stays in the water; a multi-source Dijkstra
+(``scipy.sparse.csgraph``) from the buoys' nearest points gives every point its nearest buoy (the cells), its
+distance through the water, and the shortest path back.
 """
 
 from __future__ import annotations
