@@ -158,6 +158,7 @@ def test_dvc_repro_end_to_end(tmp_path):
     assert report.count("![") == len(figures)
     assert "## Targets of `tuned` CR-MARL" in report and "| rule | verdict | sensitivity |" in report
     assert "## Robustness" in report and "## Search budgets" in report and "| naive_tuned | square |" in report
+    assert "| lloyd_tuned gains for every lake |" in report
     ablation = report.split("## Ablation")[1].split("\n## ")[0]
     for change in params["ablation"]["changes"]:
         assert f"| `{change}` |" in ablation, f"no ablation row for {change}"
