@@ -100,6 +100,8 @@ def test_outline_files_with_nan_vertices_or_an_unknown_crs_are_named(capsys, tmp
     (["export", "general", "--baseline-gains", "nowhere.json"],
      "--baseline-gains nowhere.json: no such file; `replicate tune general-baselines` writes it"),
     (["export", "general", "--baseline-gains", "actor.pt"], "--baseline-gains actor.pt: not the general baselines'"),
+    (["export", "general", "--baseline-gains", "partial.json"],
+     "--baseline-gains partial.json: not the general baselines' gains (TypeError"),
     (["tune", "general-baselines", "--set", "tuning.general_baselines.starts=0"],
      "tuning.general_baselines.starts must be at least 1"),
     (["tune", "general-baselines", "--set", "evaluate.geodesic.spacing=0"], "evaluate.geodesic.spacing must be in"),
@@ -107,10 +109,12 @@ def test_outline_files_with_nan_vertices_or_an_unknown_crs_are_named(capsys, tmp
 def test_general_policy_inputs_are_refused_by_name(capsys, tmp_path, monkeypatch, argv, message):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "actor.pt").write_bytes(b"x")
+    (tmp_path / "partial.json").write_text('{"naive_tuned": {"gains": {"attraction": 1, "avoid_range": 1, '
+                                           '"avoidance": 1, "damping": 0}}, "lloyd_tuned": {"gains": {"gain": 2}}}')
     (tmp_path / "general").mkdir()
     (tmp_path / "general" / "actor.pt").write_bytes(b"x")  # a general run's folder, as export tells them apart
     params = str(cli.Path(__file__).resolve().parents[1] / "params.yaml")
     code, err = run(capsys, "--params", params, *argv)
     assert code == 2 and message in err and "Traceback" not in err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["actor.pt", "general"], "nothing written"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["actor.pt", "general", "partial.json"], "nothing written"
     assert sorted(p.name for p in (tmp_path / "general").iterdir()) == ["actor.pt"]

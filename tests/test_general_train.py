@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from replicate.general_train import FleetNStep, FleetReplay, GeneralTrainer, on_shore
+from replicate.general_train import ON_SHORE, FleetNStep, FleetReplay, GeneralTrainer, on_shore
 from replicate.shared_maddpg import SharedActor
 
 
@@ -82,10 +82,24 @@ def test_n_step_transitions_sum_the_rewards_and_stop_at_a_loss():
     assert replay.live[:3].tolist() == [[True, True], [True, True], [True, False]]
 
 
-def test_a_buoy_on_the_shore_reads_a_zero_ray():
-    columns = ["vx", "vy", "shore_0deg", "shore_90deg"]
-    obs = np.array([[[0, 0, 0.0, 1.0], [0, 0, 0.3, 2.0]]])
-    assert on_shore(obs, columns).tolist() == [[True, False]]
+def test_a_buoy_the_wall_stopped_is_on_the_shore(params, regions):
+    """Buoys driven into the shore at full thrust rest on it (the wall stops them a hair inside the water: their
+    shortest ray is above 0): ``on_shore`` finds every one of them, and none of the buoys left mid-lake."""
+    from replicate.env import CoverageEnv, observation_columns
+
+    env = CoverageEnv(regions["square"], dataclasses.replace(params.world, n_agents=4), params.coverage, n_envs=3,
+                      observation="local", sensors_config=params.general.sensors, wall=True)
+    env.reset(seed=0, start="random")
+    env.pos[:] = [[-0.4, 0.0], [0.4, 0.0], [0.0, -0.4], [0.0, 0.4]]
+    env.vel[:] = 0.0
+    push = np.zeros((3, 4, 2))
+    push[:, :2, 0] = [-1.0, 1.0]  # buoys 0 and 1 drive west and east into the shore; 2 and 3 drift still
+    for _ in range(30):
+        obs = env.step(push).obs
+    columns = observation_columns("local", params.general.sensors)
+    assert 0 < obs[:, :2, [k for k, c in enumerate(columns) if c.startswith("shore_")]].min() < ON_SHORE
+    shore = on_shore(obs, columns)
+    assert shore[:, :2].all() and not shore[:, 2:].any()
 
 
 @pytest.mark.slow

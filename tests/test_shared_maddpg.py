@@ -127,3 +127,21 @@ def test_pooling_the_k_nearest_is_pooling_all_when_k_covers_the_fleet_and_ignore
     assert torch.allclose(before[:, i], after[:, i], atol=1e-6)
     assert not torch.allclose(whole.pooled(b.obs, b.act, b.pos, b.live)[:, i],
                               whole.pooled(b.obs, b.act, moved, b.live)[:, i])
+
+
+def test_pooling_the_k_nearest_averages_the_embeddings_of_exactly_those_buoys():
+    """K = 3 of 6 (the gather path), with a sample whose buoy has fewer live others than K: each buoy's pooled
+    vector is the mean of φ over its K nearest live others, computed here one buoy at a time."""
+    torch.manual_seed(4)
+    live = torch.ones(3, 6, dtype=torch.bool)
+    live[2, 2:] = False  # two live buoys: each has one live other, fewer than K
+    b = fleet(6, batch=3, live=live)
+    critic = PooledCritic(OD, AD, 64, 32, pool_neighbours=3)
+    pooled = critic.pooled(b.obs, b.act, b.pos, b.live)
+    for s in range(3):
+        for i in range(6):
+            others = [j for j in range(6) if j != i and b.live[s, j]]
+            others.sort(key=lambda j: float((b.pos[s, j] - b.pos[s, i]).square().sum()))
+            near = others[:3]
+            x = torch.stack([torch.cat([b.obs[s, j], b.act[s, j], b.pos[s, j] - b.pos[s, i]]) for j in near])
+            assert torch.allclose(pooled[s, i], critic.phi(x).mean(dim=0), atol=1e-5)

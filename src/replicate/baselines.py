@@ -99,16 +99,18 @@ def naive_swarming(cfg: NaiveConfig) -> Policy:
 
 
 SEPARATION = 1e-6  # m: how far apart ``separate_coincident`` sets buoys that share a point, for the diagram only
+COINCIDENT = 1e-9  # m: buoys closer than this share a point (GEOS fails on sites 1e-15 apart as on equal ones)
 
 
 def separate_coincident(xy: np.ndarray, inward: np.ndarray, eps: float = SEPARATION) -> np.ndarray:
-    """The points [E, N, 2] with every group of m > 1 coincident points of one environment spread onto a circle
-    of radius ``eps`` about their point, member k at angle θ + π/m + 2πk/m (k in agent order), θ the direction
-    from the point toward ``inward`` [2] (a point of the water). GEOS builds no Voronoi diagram of coincident
-    points; spread this way, the group's shared cell splits into m wedges, one boundary of which points into the
-    water, so a group that the shore wall pinned to one vertex has at least two wedges in the water and breaks
-    up. Points that are not shared are returned as they are: a diagram without coincident points is unchanged."""
-    same = (xy[:, :, None] == xy[:, None]).all(axis=-1)  # [E, N, N]
+    """The points [E, N, 2] with every group of m > 1 coincident points (``COINCIDENT``) of one environment spread
+    onto a circle of radius ``eps`` about their point, member k at angle θ + π/m + 2πk/m (k in agent order), θ the
+    direction from the point toward ``inward`` [2] (a point of the water). GEOS builds no Voronoi diagram of
+    coincident points; spread this way, the group's shared cell splits into m wedges, one boundary of which points
+    into the water, so a group that the shore wall pinned to one vertex has at least two wedges in the water and
+    breaks up. Points that are not shared are returned as they are: a diagram without coincident points is
+    unchanged."""
+    same = (np.abs(xy[:, :, None] - xy[:, None]) <= COINCIDENT).all(axis=-1)  # [E, N, N]
     size = same.sum(axis=2)  # [E, N]: how many agents share agent i's point (itself included)
     if (size == 1).all():
         return xy

@@ -239,9 +239,13 @@ def evaluate_general(args: argparse.Namespace, params: Params) -> int:
     artifacts.write_json(out, result)
     cov, rivals = result["coverage"], result["baselines"]
     lloyd = next(rivals[k] for k in ("lloyd_tuned", "lloyd") if k in rivals)
+
+    def ratio(key):
+        return "n/a" if result[key] is None else f"{result[key]:.3f}"
+
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes); "
-          f"Lloyd {lloyd['coverage']['mean']:.3f} ({lloyd['gains']} gains), ratio {result['ratio_to_lloyd']:.3f}; "
-          f"best layout {rivals['best_layout']['coverage']['mean']:.3f}, ratio {result['ratio_to_best']:.3f}; "
+          f"Lloyd {lloyd['coverage']['mean']:.3f} ({lloyd['gains']} gains), ratio {ratio('ratio_to_lloyd')}; "
+          f"best layout {rivals['best_layout']['coverage']['mean']:.3f}, ratio {ratio('ratio_to_best')}; "
           f"furthest outside the water {result['max_outside_m']:.3g} m; wrote {out}")
     return 0
 
@@ -357,11 +361,15 @@ def read_baseline_gains(path: str | None) -> dict | None:
 
     if path is None:
         return None
+    from .config import LloydConfig, NaiveConfig
+
     try:
         gains = json.loads(Path(path).read_text())
-        for kind in ("naive_tuned", "lloyd_tuned"):
-            if not isinstance(gains[kind]["gains"], dict):
-                raise TypeError(kind)
+        naive = NaiveConfig(**gains["naive_tuned"]["gains"])
+        lloyd = LloydConfig(**gains["lloyd_tuned"]["gains"], converged_steps=0)
+        values = [*dataclasses.asdict(naive).values(), lloyd.gain, lloyd.damping]
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+            raise ValueError(f"gains must be finite numbers, got {values}")
     except FileNotFoundError:
         raise ConfigError(f"--baseline-gains {path}: no such file; `replicate tune general-baselines` writes it") \
             from None

@@ -138,7 +138,7 @@ def check_general(g: GeneralConfig, regions: dict) -> None:
     for start in su.starts:
         if start not in ("corner", "random"):
             raise ConfigError(f"general.suite.starts: 'corner' or 'random', got {start!r}")
-    within(su.lose_fraction, "general.suite.lose_fraction", 0, 1, open_lo=True)
+    within(su.lose_fraction, "general.suite.lose_fraction", 0, 0.5, open_lo=True)  # a fleet keeps most of itself
     within(su.current, "general.suite.current", 0)
     within(su.episodes, "general.suite.episodes", 1)
     within(su.held_out, "general.suite.held_out", 0)

@@ -93,10 +93,14 @@ class FleetNStep:
         self.open.pop(0)
 
 
+ON_SHORE = 1e-6  # m: a buoy the wall stopped rests ~1e-11 m inside the shoreline, not on it
+
+
 def on_shore(obs: np.ndarray, columns: list[str]) -> np.ndarray:
-    """Which buoys rest on the shore: a shore ray of length 0 (a buoy the wall stopped). obs [E, N, d] → [E, N]."""
+    """Which buoys rest on the shore: a shore ray shorter than ``ON_SHORE`` (a buoy the wall stopped).
+    obs [E, N, d] → [E, N]."""
     rays = [k for k, name in enumerate(columns) if name.startswith("shore_")]
-    return obs[..., rays].min(axis=-1) <= 0.0
+    return obs[..., rays].min(axis=-1) <= ON_SHORE
 
 
 def noise_sigma(gc: GeneralConfig, progress: float) -> float:

@@ -89,7 +89,10 @@ def distinct_nearest(g: WaterGraph, xy: np.ndarray) -> np.ndarray:
     """Each buoy's nearest water point [N], no two the same: in agent order, a buoy whose nearest point is taken
     gets its nearest free one (buoys the shore wall pinned to one vertex start from neighbouring points, so each
     has a cell of its own and they steer apart)."""
-    k = min(len(xy), len(g.points))
+    if len(g.points) < len(xy):
+        raise ValueError(f"the water graph has {len(g.points)} points for {len(xy)} buoys: the lake is narrow for its "
+                         f"spacing of {g.spacing} m; lower evaluate.geodesic.spacing")
+    k = len(xy)
     nearest = g.tree.query(xy, k=k)[1].reshape(len(xy), k)
     if len(np.unique(nearest[:, 0])) == len(xy):
         return nearest[:, 0]

@@ -139,7 +139,7 @@ def _evaluate_lake(job: dict) -> list[dict]:
     region = at_density(region, drawn_for, job["n_agents"])
     out = []
     for cell in map(lambda c: SuiteCell(**c), job["cells"]):
-        lose = int(cell.n_agents * su.lose_fraction) if cell.event == "lose" else 0
+        lose = max(1, int(cell.n_agents * su.lose_fraction)) if cell.event == "lose" else 0
         current = (su.current, 0.0) if cell.event == "current" else None
         result = evaluate_policy(job["policy"], region, params, cell.n_agents, cell.start, lose, current)
         out.append({**dataclasses.asdict(cell), "lose": lose, "coverage": result["coverage"],

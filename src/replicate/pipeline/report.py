@@ -298,7 +298,7 @@ def general_verdicts(cells: list[dict], t) -> list[tuple[str, str, str]]:
         (f"lakes where lloyd_tuned is ≥ {t.narrow_gap} below the best layout: above lloyd_tuned",
          narrow := [c for c in still if cov(c, "best_layout") - cov(c, "lloyd_tuned") >= t.narrow_gap],
          [cov(c) > cov(c, "lloyd_tuned") for c in narrow]),
-        (f"a third lost at T/2: ≥ {t.lose_of_lloyd:.0%} of what lloyd_tuned re-covers",
+        (f"buoys lost at T/2: ≥ {t.lose_of_lloyd:.0%} of what lloyd_tuned re-covers",
          lose := [c for c in cells if c["event"] == "lose"],
          [cov(c) >= t.lose_of_lloyd * cov(c, "lloyd_tuned") for c in lose]),
         (f"drift: ≥ {t.current_of_still:.0%} of its own still-water coverage",
