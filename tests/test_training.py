@@ -297,10 +297,17 @@ def test_corrupt_and_mismatched_checkpoints_are_refused(params, regions, tmp_pat
         small_trainer(params, regions["square"], tmp_path / "empty").load_checkpoint()
 
 
+def default_sigint() -> None:
+    """In the child: Ctrl-C as a terminal delivers it. A suite started in the background by a shell without job
+    control (``nohup make test &``) runs with SIGINT ignored, which children inherit; Python then never raises
+    KeyboardInterrupt, and a test of Ctrl-C would see the run finish."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def cli(*args, **kw):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     kw.setdefault("cwd", ROOT)
-    return subprocess.Popen([sys.executable, "-m", "replicate.cli", *args], env=env, **kw)
+    return subprocess.Popen([sys.executable, "-m", "replicate.cli", *args], env=env, preexec_fn=default_sigint, **kw)
 
 
 SMALL = ["--set", "configs.tuned.n_envs=10", "--set", "configs.tuned.maddpg.learning_starts=500",
