@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from replicate.general_train import ON_SHORE, FleetNStep, FleetReplay, GeneralTrainer, on_shore
+from replicate.general_train import ON_SHORE, FleetNStep, FleetReplay, GeneralTrainer, on_shore, shore_rays
 from replicate.shared_maddpg import SharedActor
 
 
@@ -69,9 +69,9 @@ def test_n_step_transitions_sum_the_rewards_and_stop_at_a_loss():
     writer = FleetNStep(replay, 2, gamma)
     live = [np.array([[True, True]]), np.array([[True, True]]), np.array([[True, False]])]
     for t in range(3):
-        writer.add(t == 2, live=live[t], obs=np.full((1, 2, 1), t), act=np.zeros((1, 2, 2)),
-                   rew=np.array([[1.0, 10.0]]) * (t + 1) * live[t], pos=np.zeros((1, 2, 2)),
-                   next_obs=np.full((1, 2, 1), t + 1), next_pos=np.zeros((1, 2, 2)))
+        writer.push(t == 2, live=live[t], obs=np.full((1, 2, 1), t), act=np.zeros((1, 2, 2)),
+                    rew=np.array([[1.0, 10.0]]) * (t + 1) * live[t], pos=np.zeros((1, 2, 2)),
+                    next_obs=np.full((1, 2, 1), t + 1), next_pos=np.zeros((1, 2, 2)))
     assert replay.size == 3
     rew, disc, nxt = replay.data["rew"][:3], replay.disc[:3], replay.data["next_obs"][:3, 0, 0]
     assert torch.allclose(rew[0], torch.tensor([1 + gamma * 2, 10 + gamma * 20]))
@@ -98,7 +98,7 @@ def test_a_buoy_the_wall_stopped_is_on_the_shore(params, regions):
         obs = env.step(push).obs
     columns = observation_columns("local", params.general.sensors)
     assert 0 < obs[:, :2, [k for k, c in enumerate(columns) if c.startswith("shore_")]].min() < ON_SHORE
-    shore = on_shore(obs, columns)
+    shore = on_shore(obs, shore_rays(columns))
     assert shore[:, :2].all() and not shore[:, 2:].any()
 
 

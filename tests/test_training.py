@@ -510,7 +510,7 @@ def test_agents_at_one_point_split_its_cell_and_steer_apart(regions):
                 alone = baselines.voronoi_centroids(region, np.vstack([point, others]))
                 np.testing.assert_allclose(target[m:], alone[1:], atol=1e-5)
     xy = np.random.default_rng(0).uniform(-1.5, 1.5, (4, 9, 2))
-    assert np.array_equal(baselines.separate_coincident(xy, np.zeros(2)), xy)
+    assert np.array_equal(baselines.separate_coincident(xy, regions["square"].polygon), xy)
     corner = np.array([[1.5, -1.5], [1.5, -1.5 + 1e-15], [0.0, 0.0]])  # 1e-15 apart: GEOS fails as on one point
     assert np.isfinite(baselines.voronoi_centroids(regions["square"].polygon, corner)).all()
 

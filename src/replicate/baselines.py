@@ -56,10 +56,7 @@ def for_live_buoys(steer: Callable[[CoverageEnv, np.ndarray, np.ndarray], np.nda
 
 
 @functools.lru_cache(maxsize=64)
-def _interior(region_wkb: bytes, eroded_wkb: bytes) -> Polygon:
-    eroded = shapely.from_wkb(eroded_wkb)
-    if not eroded.is_empty:
-        return eroded
+def _middle(region_wkb: bytes) -> Polygon:
     region = shapely.from_wkb(region_wkb)
     depth = shapely.maximum_inscribed_circle(region).length  # the deepest point's distance to the shore
     return region.buffer(-0.5 * depth)
@@ -70,7 +67,7 @@ def interior(region: Polygon, eroded: Polygon) -> Polygon:
     the lake is nowhere that deep (its deepest point closer to the shore than R, so Reg ⊖ Cov is empty), the
     water at least half the deepest point's depth from the shore: a non-empty middle of the lake, never the
     whole lake (which would leave buoys on the shore with no pull at all)."""
-    return _interior(region.wkb, eroded.wkb)
+    return eroded if not eroded.is_empty else _middle(region.wkb)
 
 
 def naive_swarming(cfg: NaiveConfig) -> Policy:
@@ -102,10 +99,10 @@ SEPARATION = 1e-6  # m: how far apart ``separate_coincident`` sets buoys that sh
 COINCIDENT = 1e-9  # m: buoys closer than this share a point (GEOS fails on sites 1e-15 apart as on equal ones)
 
 
-def separate_coincident(xy: np.ndarray, inward: np.ndarray, eps: float = SEPARATION) -> np.ndarray:
+def separate_coincident(xy: np.ndarray, water: Polygon, eps: float = SEPARATION) -> np.ndarray:
     """The points [E, N, 2] with every group of m > 1 coincident points (``COINCIDENT``) of one environment spread
     onto a circle of radius ``eps`` about their point, member k at angle θ + π/m + 2πk/m (k in agent order), θ the
-    direction from the point toward ``inward`` [2] (a point of the water). GEOS builds no Voronoi diagram of
+    direction from the point toward a point of ``water`` (``point_on_surface``). GEOS builds no Voronoi diagram of
     coincident points; spread this way, the group's shared cell splits into m wedges, one boundary of which points
     into the water, so a group that the shore wall pinned to one vertex has at least two wedges in the water and
     breaks up. Points that are not shared are returned as they are: a diagram without coincident points is
@@ -115,7 +112,7 @@ def separate_coincident(xy: np.ndarray, inward: np.ndarray, eps: float = SEPARAT
     if (size == 1).all():
         return xy
     rank = np.tril(same, k=-1).sum(axis=2)  # [E, N]: how many of them come before it
-    toward = inward - xy
+    toward = shapely.get_coordinates(water.point_on_surface())[0] - xy
     angle = np.arctan2(toward[..., 1], toward[..., 0]) + np.pi * (2 * rank + 1) / size
     offset = eps * np.stack([np.cos(angle), np.sin(angle)], axis=-1) * (size > 1)[..., None]
     return xy + offset
@@ -135,7 +132,7 @@ def voronoi_centroids(region: Polygon, xy: np.ndarray) -> np.ndarray:
     if n == 1:
         cells, proper = np.full(e, region, dtype=object), np.ones(e, bool)
     else:
-        sites = separate_coincident(batch, shapely.get_coordinates(region.point_on_surface())[0])
+        sites = separate_coincident(batch, region)
         minx, miny, maxx, maxy = region.bounds
         pad = max(maxx - minx, maxy - miny) + np.abs(sites).max(axis=(1, 2))  # [E]
         frames = shapely.box(minx - pad, miny - pad, maxx + pad, maxy + pad)

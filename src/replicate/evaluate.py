@@ -264,7 +264,7 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
            "episodes": ev.episodes, "baselines": {}}
     rivals, how = general_baselines(params, meta.get("baseline_gains"))
     for name, policy in (("general", general), *rivals.items()):
-        env = world_env(params, config, region, n_agents, ev.episodes, 0, reward=False)
+        env = world_env(params, config, region, n_agents, ev.episodes, 0, reward=False, sensors=name == "general")
         if current is not None:
             env.set_current(Current.uniform(np.broadcast_to(np.asarray(current, float), (ev.episodes, 2))))
         trace = rollout(env, policy, steps, ev.seed, StartsConfig(start=start, lose=lose))

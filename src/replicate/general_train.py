@@ -26,6 +26,7 @@ from . import artifacts
 from .config import GeneralConfig, Params, to_dict
 from .currents import random_current
 from .env import observation_columns
+from .maddpg import NStepWriter
 from .shared_maddpg import FleetBatch, SharedMADDPG
 from .worlds import World, make_worlds, world_env
 
@@ -64,42 +65,27 @@ class FleetReplay:
                           next_live=self.next_live[idx], disc=self.disc[idx])
 
 
-class FleetNStep:
-    """Writes the steps of E environments of one fleet into a ``FleetReplay`` as n-step transitions (Sutton &
-    Barto §7.1; n = 1 is MADDPG's one-step transition): the step of time t is written once its n rewards are known,
-    r = Σ_{k<n} γᵏ r_{t+k}, bootstrapping at o_{t+n} with γⁿ and the buoys in service then; the episode's last step
-    writes the ones still open with the m < n rewards left. A buoy lost in between is not bootstrapped (its
-    rewards after the loss are 0, its future none)."""
+class FleetNStep(NStepWriter):
+    """``maddpg.NStepWriter`` for a ``FleetReplay``: a step also carries the buoys in service (``live``) and their
+    positions (``pos``, ``next_pos``); a transition bootstraps with the buoys in service after its last step, so a
+    buoy lost in between is not bootstrapped (its rewards after the loss are 0, its future none)."""
 
-    def __init__(self, replay: FleetReplay, n: int, gamma: float):
-        self.replay, self.n, self.gamma = replay, n, gamma
-        self.open: list[dict] = []
-
-    def add(self, last: bool, **step) -> None:
-        """One step: live [E, N], obs, act, rew, pos, and next_obs, next_pos after it."""
-        self.open.append(step)
-        if len(self.open) == self.n:
-            self._write()
-        while last and self.open:
-            self._write()
-
-    def _write(self) -> None:
-        first, end = self.open[0], self.open[-1]
-        ret = first["rew"]
-        for k in range(1, len(self.open)):
-            ret = ret + self.gamma**k * self.open[k]["rew"]
-        self.replay.add(first["live"], end["live"], self.gamma ** len(self.open), obs=first["obs"], act=first["act"],
-                        rew=ret, next_obs=end["next_obs"], pos=first["pos"], next_pos=end["next_pos"])
-        self.open.pop(0)
+    def write(self, first: dict, ret: np.ndarray, end: dict, discount: float) -> None:
+        self.buffer.add(first["live"], end["live"], discount, obs=first["obs"], act=first["act"], rew=ret,
+                        next_obs=end["next_obs"], pos=first["pos"], next_pos=end["next_pos"])
 
 
 ON_SHORE = 1e-6  # m: a buoy the wall stopped rests ~1e-11 m inside the shoreline, not on it
 
 
-def on_shore(obs: np.ndarray, columns: list[str]) -> np.ndarray:
-    """Which buoys rest on the shore: a shore ray shorter than ``ON_SHORE`` (a buoy the wall stopped).
-    obs [E, N, d] → [E, N]."""
-    rays = [k for k, name in enumerate(columns) if name.startswith("shore_")]
+def shore_rays(columns: list[str]) -> list[int]:
+    """The observation's shore-ray columns (``sensors.columns``)."""
+    return [k for k, name in enumerate(columns) if name.startswith("shore_")]
+
+
+def on_shore(obs: np.ndarray, rays: list[int]) -> np.ndarray:
+    """Which buoys rest on the shore: a shore ray (``rays``, from ``shore_rays``) shorter than ``ON_SHORE`` (a
+    buoy the wall stopped). obs [E, N, d] → [E, N]."""
     return obs[..., rays].min(axis=-1) <= ON_SHORE
 
 
@@ -121,8 +107,9 @@ class GeneralTrainer:
         self.rng_sample = np.random.default_rng(streams[3])
         self.worlds = make_worlds(params, self.gc, np.random.default_rng(streams[0]), self.gc.n_envs)
         self.validation = self.validation_worlds(np.random.default_rng(streams[4]))
-        self.columns = observation_columns("local", self.gc.sensors)
-        obs_dim = len(self.columns)
+        columns = observation_columns("local", self.gc.sensors)
+        self.rays = shore_rays(columns)
+        obs_dim = len(columns)
         self.agent = SharedMADDPG(obs_dim, 2, self.gc.learner, seed=seed)
         self.replay = FleetReplay(self.gc.buffer_size, max(w.n_agents for w in self.worlds), obs_dim)
         self.rows: list[list] = []
@@ -173,9 +160,11 @@ class GeneralTrainer:
             pos = env.pos.copy()
             act = self.agent.act(obs, sigma, self.noise).numpy()
             step = env.step(act)
-            rew = step.reward * gc.reward_scale - gc.shore_penalty * (on_shore(step.obs, self.columns) & live)
-            writer.add(t == gc.episode_length - 1, live=live, obs=obs, act=act, rew=rew, pos=pos,
-                       next_obs=step.obs, next_pos=env.pos.copy())
+            rew = step.reward * gc.reward_scale
+            if gc.shore_penalty:
+                rew = rew - gc.shore_penalty * (on_shore(step.obs, self.rays) & live)
+            writer.push(t == gc.episode_length - 1, live=live, obs=obs, act=act, rew=rew, pos=pos,
+                        next_obs=step.obs, next_pos=env.pos.copy())
             obs = step.obs
             for stats in self.learn(env.n_envs):
                 losses.append(stats["critic_loss"])

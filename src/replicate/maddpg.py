@@ -164,27 +164,37 @@ class NStepWriter:
     A transition from step t is written once its n rewards are known: r = Σ_{k<n} γᵏ r_{t+k}, next_obs = o_{t+n},
     disc = γⁿ. The episode's last step (its time limit) writes the ones still open, each with the m < n rewards
     left, bootstrapping at the last observation with γᵐ. Arrays are [E, N, ...] as in ``ReplayBuffer.add``.
+    A step is a dict of arrays with its reward under ``rew``; ``write`` stores one transition (another buffer's
+    writer overrides it: ``general_train.FleetNStep``).
     """
 
-    def __init__(self, buffer: ReplayBuffer, n: int, gamma: float):
+    def __init__(self, buffer, n: int, gamma: float):
         if n < 1:
             raise ValueError(f"n-step returns need n >= 1, got {n}")
         self.buffer, self.n, self.gamma = buffer, n, gamma
-        self.open: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (obs, act, rew) of unwritten steps
+        self.open: list[dict] = []  # the unwritten steps, oldest first
 
     def add(self, obs: np.ndarray, act: np.ndarray, rew: np.ndarray, next_obs: np.ndarray, last: bool) -> None:
-        self.open.append((obs, act, rew))
-        if len(self.open) == self.n:
-            self._write(next_obs)
-        while last and self.open:
-            self._write(next_obs)
+        self.push(last, obs=obs, act=act, rew=rew, next_obs=next_obs)
 
-    def _write(self, next_obs: np.ndarray) -> None:
-        obs, act, ret = self.open[0]
+    def push(self, last: bool, **step: np.ndarray) -> None:
+        """One step of every environment; ``last``: the episode's time limit, which writes every open step."""
+        self.open.append(step)
+        if len(self.open) == self.n:
+            self._write()
+        while last and self.open:
+            self._write()
+
+    def _write(self) -> None:
+        ret = self.open[0]["rew"]
         for k in range(1, len(self.open)):
-            ret = ret + self.gamma**k * self.open[k][2]
-        self.buffer.add(obs, act, ret, next_obs, self.gamma ** len(self.open))
+            ret = ret + self.gamma**k * self.open[k]["rew"]
+        self.write(self.open[0], ret, self.open[-1], self.gamma ** len(self.open))
         self.open.pop(0)
+
+    def write(self, first: dict, ret: np.ndarray, end: dict, discount: float) -> None:
+        """Store the transition of step ``first``: its m-step return ``ret``, bootstrapping after step ``end``."""
+        self.buffer.add(first["obs"], first["act"], ret, end["next_obs"], discount)
 
 
 @dataclass

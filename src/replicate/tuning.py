@@ -198,8 +198,8 @@ def general_worlds(params: Params) -> list:
     gc, starts = params.general, params.tuning.general_baselines.starts
     key = study_name("worlds", gc, params.world, params.coverage, params.regions, starts)
     if key not in _GENERAL_WORLDS:
-        _GENERAL_WORLDS[key] = [(region, world_env(params, gc, region, n, max(1, starts // 2), 0, reward=False))
-                                for region, n in baseline_worlds(params, gc)]
+        _GENERAL_WORLDS[key] = [(region, world_env(params, gc, region, n, max(1, starts // 2), 0, reward=False,
+                                                   sensors=False)) for region, n in baseline_worlds(params, gc)]
     return _GENERAL_WORLDS[key]
 
 

@@ -32,12 +32,14 @@ class World:
 
 
 def world_env(params: Params, gc: GeneralConfig, region: Region, n_agents: int, n_envs: int, seed,
-              reward: bool = True) -> CoverageEnv:
+              reward: bool = True, sensors: bool = True) -> CoverageEnv:
+    """E environments of one world. ``reward``: CR's reward (a policy being trained); ``sensors``: the local
+    observation (a policy acting; the baselines read positions, and skip the shore rays each step)."""
     world = dataclasses.replace(region_world(params, None), n_agents=n_agents, episode_length=gc.episode_length)
     cr = dataclasses.replace(params.cr_reward, c1=gc.cover_weight, c2=gc.union_weight)
     return CoverageEnv(region, world, params.coverage, n_envs=n_envs, reward="cr" if reward else None, cr=cr,
-                       observation="local", sensors_config=gc.sensors, wall=True, union_credit="difference",
-                       seed=seed)
+                       observation="local" if sensors else "position", sensors_config=gc.sensors, wall=True,
+                       union_credit="difference", seed=seed)
 
 
 def coverage_area(params: Params) -> float:
