@@ -105,6 +105,12 @@ def test_outline_files_with_nan_vertices_or_an_unknown_crs_are_named(capsys, tmp
     (["tune", "general-baselines", "--set", "tuning.general_baselines.starts=0"],
      "tuning.general_baselines.starts must be at least 1"),
     (["tune", "general-baselines", "--set", "evaluate.geodesic.spacing=0"], "evaluate.geodesic.spacing must be in"),
+    (["cover", "--region", "lake.geojson", "--episodes", "100"], "--episodes goes with --method cr"),
+    (["cover", "--region", "lake.geojson", "--policy", "nowhere.pt"], "--policy nowhere.pt: no such file"),
+    (["cover", "--region", "lake.geojson", "--finetune", "-5"], "--finetune must be 0 (zero-shot)"),
+    (["cover", "--region", "lake.geojson", "--method", "cr", "--finetune", "64"],
+     "--policy and --finetune go with --method general"),
+    (["cover", "--region", "lake.geojson", "--policy", "actor.pt"], "export it first"),
 ])
 def test_general_policy_inputs_are_refused_by_name(capsys, tmp_path, monkeypatch, argv, message):
     monkeypatch.chdir(tmp_path)

@@ -4,6 +4,7 @@ is reproducible, and its actor drives any fleet."""
 import dataclasses
 import gzip
 import json
+import subprocess
 
 import numpy as np
 import pytest
@@ -146,6 +147,39 @@ def test_a_general_policy_runs_zero_shot_on_a_lake_the_repo_does_not_ship(two_ru
         assert max(b["coverage"]["mean"] for b in result["baselines"].values()) <= best["coverage"]["mean"] + 0.01
 
 
+@pytest.mark.slow
+def test_cover_uses_the_general_policy_zero_shot_and_fine_tuned(two_runs, tmp_path):
+    """`replicate cover --policy FILE`: the general policy on a lake the repo does not ship, zero-shot with its
+    baselines under the wall; then `--finetune`, which keeps the starting weights when training (here too short
+    to update once) does not beat them on the lake's validation starts."""
+    import geopandas as gpd
+    from shapely.geometry import Polygon
+
+    from .test_training import cli
+
+    out, _ = two_runs
+    assert cli("export", str(out / "run0"), "--out", str(tmp_path / "general.pt")).wait(timeout=300) == 0
+    lake = Polygon([(6.56, 46.50), (6.575, 46.502), (6.58, 46.51), (6.565, 46.512), (6.555, 46.505)])
+    gpd.GeoDataFrame({"name": ["lake"]}, geometry=[lake], crs="EPSG:4326").to_file(tmp_path / "lake.geojson")
+    small = ["--set", "evaluate.episodes=4", "--set", "general.n_envs=4"]
+    zero = cli(*small, "cover", "--region", str(tmp_path / "lake.geojson"), "--policy", str(tmp_path / "general.pt"),
+               "--n-agents", "6", "--out", str(tmp_path / "zero"), "--no-progress", stdout=subprocess.PIPE, text=True)
+    assert zero.wait(timeout=600) == 0
+    assert "general policy, zero-shot: coverage" in zero.stdout.read()
+    summary = json.loads((tmp_path / "zero" / "summary.json").read_text())
+    assert summary["n_agents"] == 6 and summary["finetune_episodes"] == 0 and summary["max_outside_m"] == 0.0
+    assert set(summary["baselines"]) == {"naive", "lloyd", "geodesic_lloyd", "best_layout"}
+    assert summary["coverage"]["mean"] <= summary["baselines"]["best_layout"]["coverage"]["mean"] + 0.01
+    assert (tmp_path / "zero" / "spread.png").exists()
+    tuned = cli(*small, "cover", "--region", str(tmp_path / "lake.geojson"), "--policy", str(tmp_path / "general.pt"),
+                "--n-agents", "6", "--finetune", "8", "--out", str(tmp_path / "tuned"), "--no-progress")
+    assert tuned.wait(timeout=600) == 0
+    again = json.loads((tmp_path / "tuned" / "summary.json").read_text())
+    assert again["finetune_episodes"] == 8 and again["finetune"]["selected_episode"] == 0  # the starting weights
+    assert again["coverage"] == summary["coverage"]
+    assert (tmp_path / "tuned" / "policy.pt").exists() and (tmp_path / "tuned" / "finetune" / "curve.csv.gz").exists()
+
+
 def test_the_pipeline_keeps_the_best_validated_seed_and_skips_finished_ones(tmp_path):
     """``pipeline.general.train_general``: each seed trained once, the best-validated one exported with the
     baselines' gains; run again with the same settings, nothing is trained."""
@@ -171,6 +205,10 @@ def test_the_pipeline_keeps_the_best_validated_seed_and_skips_finished_ones(tmp_
     _, meta = load_policy(tmp_path / "policies" / "general.pt")
     assert meta["n_agents"] == "any" and meta["trained"]["seed"] == first["kept_seed"]
     assert meta["baseline_gains"]["lloyd_tuned"]["gains"] == gains["lloyd_tuned"]["gains"]
+    for run in first["runs"]:  # every seed exported; the deployed file is the kept seed's
+        assert load_policy(tmp_path / "policies" / run["policy"])[1]["trained"]["seed"] == run["seed"]
+    kept = tmp_path / "policies" / "runs" / f"general-s{first['kept_seed']}" / "policy.pt"
+    assert (tmp_path / "policies" / "general.pt").read_bytes() == kept.read_bytes()
     again = train_general(str(tmp_path / "params.yaml"), str(tmp_path / "policies"), str(tmp_path / "gains.json"), 1)
     assert all(r["skipped"] for r in again["runs"]) and again["kept_seed"] == first["kept_seed"]
 
@@ -187,12 +225,17 @@ def test_the_evaluation_suite_scores_every_cell(two_runs, tmp_path):
     from .conftest import ROOT
 
     out, _ = two_runs
-    export_general(out / "run0" / "actor.pt", tmp_path / "general.pt")
+    policies = tmp_path / "policies"  # the layout of ``train_general``: two seeds (the same weights), one kept
+    for k, seed in enumerate((4, 5)):
+        export_general(out / f"run{k}" / "actor.pt", policies / "runs" / f"general-s{seed}" / "policy.pt")
+    runs = [{"seed": s, "policy": f"runs/general-s{s}/policy.pt"} for s in (4, 5)]
+    (policies / "summary.json").write_text(json.dumps({"kept_seed": 5, "runs": runs}))
     raw = yaml.safe_load((ROOT / "params.yaml").read_text())
     raw["general"]["suite"].update(held_out=1, named_fleets=[5], lake_fleets=[6], starts=["random"], episodes=2)
     raw["regions"]["bedok"]["path"] = str(ROOT / raw["regions"]["bedok"]["path"])
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
-    result = evaluate_general(str(tmp_path / "params.yaml"), str(tmp_path / "general.pt"), str(tmp_path / "g.json"), 1)
+    result = evaluate_general(str(tmp_path / "params.yaml"), str(policies), str(tmp_path / "g.json"), 1)
+    assert result["seeds"] == ["s5", "s4"] and result["policy"] == str(policies / "general.pt")
     cells = {(c["region"], c["n_agents"], c["event"]): c for c in result["cells"]}
     from replicate.config import load_params
 
@@ -201,5 +244,6 @@ def test_the_evaluation_suite_scores_every_cell(two_runs, tmp_path):
     for c in result["cells"]:
         best = c["baselines"]["best_layout"]["coverage"]["mean"]
         assert c["max_outside_m"] == 0.0 and c["coverage"]["n"] == 2
+        assert c["seeds"]["s5"]["coverage"] == c["coverage"] == c["seeds"]["s4"]["coverage"]  # the same weights
         assert all(b["coverage"]["mean"] <= best + 0.01 for b in c["baselines"].values())
     assert json.loads((tmp_path / "g.json").read_text())["cells"] == result["cells"]

@@ -29,7 +29,7 @@ PER_CONFIG = [
 ]
 SELECTING = ["fig_{c}_evaluation_square", "fig_{c}_evaluation_rectangle", "fig_{c}_evaluation_bedok"]
 ONCE = ["fig_agent_vs_region", "fig_overall_coverage", "fig_bedok_map"]
-OUTPUT_DIRS = ("runs", "metrics", "figures", "notebooks/executed")
+OUTPUT_DIRS = ("runs", "metrics", "figures", "notebooks/executed", "policies")
 
 
 def expected_figures(configs, selecting=("tuned",)) -> set[str]:
@@ -111,7 +111,10 @@ def test_dvc_repro_end_to_end(tmp_path):
     params["tuning"]["baselines"]["naive"]["trials"] = 3
     params["tuning"]["baselines"]["lloyd"]["trials"] = 3
     params["tuning"]["general_baselines"].update(starts=2, naive_trials=2, lloyd_trials=2)
-    params["general"].update(regions=["square"], fleet=[6], lakes=1, lake_fleet=[5, 5], lake_ratio=[1.0, 1.0])
+    params["general"].update(regions=["square"], fleet=[6], lakes=1, lake_fleet=[5, 5], lake_ratio=[1.0, 1.0],
+                             n_envs=4, episodes=8, episode_length=10, learning_starts=50, batch_size=16,
+                             buffer_size=1000, update_every=8, seeds=[0, 1])
+    params["general"]["suite"].update(held_out=3, named_fleets=[5], lake_fleets=[6], starts=["random"], episodes=2)
     params["pipeline"]["configs"] = ["paper", "tuned"]
     params["pipeline"]["ablation"] = True  # the experiment `dvc exp run -S pipeline.ablation=true`, here in one go
     params["configs"]["tuned"]["select_every"] = 25  # so the checkpoint_selection ablation has last actors
@@ -147,13 +150,19 @@ def test_dvc_repro_end_to_end(tmp_path):
     assert not missing, f"figures not produced: {sorted(missing)}"
     gifs = {p.name for p in (repo / "figures").glob("*.gif")}
     regions = ("square", "rectangle", "bedok")
-    assert gifs == {f"anim_{c}_cr_{r}.gif" for c in params["pipeline"]["configs"] for r in regions}
+    assert gifs == {f"anim_{c}_cr_{r}.gif" for c in params["pipeline"]["configs"] for r in regions} | {
+        "anim_general_lose.gif", "anim_general_current.gif"}
+    assert "fig_general_lakes.png" in figures
+    suite = json.loads((repo / "metrics" / "general.json").read_text())
+    assert suite["seeds"][0] == f"s{json.loads((repo / 'policies' / 'summary.json').read_text())['kept_seed']}"
+    assert all(set(c["seeds"]) == {"s0", "s1"} for c in suite["cells"])
     general = json.loads((repo / "metrics" / "tuning" / "general_baselines.json").read_text())
     assert {k: v["trials"] for k, v in general.items()} == {"naive_tuned": 2, "lloyd_tuned": 2}
     outline = json.loads((repo / "data" / "bedok_outline.geojson").read_text())
     assert outline["features"][0]["properties"]["source"] == "fallback"
     assert "bundled" in (repo / "notebooks" / "executed" / "fetch_outline.ipynb").read_text()
     report = (repo / "REPORT.md").read_text()
+    assert "## One policy for every lake" in report and "| 3 held-out lakes (mean) | 6 | random | none |" in report
     assert "The paper's claims" in report and "| baseline | region | steps | coverage" in report
     assert report.count("![") == len(figures)
     assert "## Targets of `tuned` CR-MARL" in report and "| rule | verdict | sensitivity |" in report

@@ -180,6 +180,17 @@ def test_the_general_policys_bars_are_counted_per_cell(params):
     assert verdicts["buoys lost at T/2: ≥ 95% of what lloyd_tuned re-covers"] == ("1 of 1", "met")
     assert verdicts["drift: ≥ 90% of its own still-water coverage"] == ("1 of 1", "met")
     assert verdicts["no buoy ever outside the water"] == ("4 of 5", "not met")
-    text = "\n".join(general_section(params, {"policy": "policies/general.pt", "cells": cells}))
-    assert "| square | 9 | corner | none | 0.770 [0.760, 0.780] |" in text
+    seeds = {"s1": {"coverage": {"mean": 0.77}, "max_outside_m": 0.0}, "s2": {"coverage": {"mean": 0.70},
+                                                                             "max_outside_m": 0.0}}
+    cells[0]["seeds"] = seeds  # one seed of the square below lloyd_tuned: the cell no longer meets the bar
+    cells[2]["seeds"] = {"s1": {"coverage": {"mean": 0.70}, "max_outside_m": 0.0},
+                         "s2": {"coverage": {"mean": 0.62}, "max_outside_m": 0.0}}  # each against its own still
+    verdicts = {bar: (n, v) for bar, n, v in general_verdicts(cells, params.report.general)}
+    assert verdicts["still water: ≥ 98% of lloyd_tuned"] == ("1 of 3", "not met")
+    assert verdicts["drift: ≥ 90% of its own still-water coverage"] == ("0 of 1", "not met")  # 0.62 < 0.9 × 0.70
+    summary = {"runs": {"tuned/cr/square": {"robustness": {"corner": {"coverage": {"mean": 0.74, "lo": 0.73,
+                                                                                   "hi": 0.75, "n": 10}}}}}}
+    text = "\n".join(general_section(params, {"policy": "policies/general.pt", "cells": cells}, summary))
+    assert "| square | 9 | corner | none | 0.770 [0.760, 0.780] | 0.700-0.770 | 0.740 [0.730, 0.750] |" in text
+    assert "| square | 9 | corner | current | 0.700 [0.690, 0.710] | 0.620-0.700 | — |" in text
     assert "| 2 held-out lakes (mean) | 9 | corner | none | 0.630 (0.600-0.660) |" in text

@@ -184,14 +184,15 @@ def test_init_writes_the_defaults_once(tmp_path):
 
 
 def test_built_package_carries_the_defaults(tmp_path):
-    """`pip install .` installs copies of params.yaml and the Bedok outline inside the package."""
+    """`pip install .` installs copies of params.yaml, the Bedok outline and the general policy inside the
+    package."""
     import shutil
     import sys
     import zipfile
 
     source = tmp_path / "source"  # a copy: building in the repository would leave build/ behind
     shutil.copytree(ROOT / "src", source / "src", symlinks=True, ignore=shutil.ignore_patterns("*.egg-info"))
-    for rel in ("pyproject.toml", "params.yaml", "data/bedok_outline.geojson"):
+    for rel in ("pyproject.toml", "params.yaml", "data/bedok_outline.geojson", "policies/general.pt"):
         (source / rel).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(ROOT / rel, source / rel)
     proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
@@ -200,6 +201,7 @@ def test_built_package_carries_the_defaults(tmp_path):
     wheel = zipfile.ZipFile(next(tmp_path.glob("*.whl")))
     assert wheel.read("replicate/defaults/params.yaml") == (ROOT / "params.yaml").read_bytes()
     assert wheel.read("replicate/defaults/bedok_outline.geojson") == (ROOT / "data/bedok_outline.geojson").read_bytes()
+    assert wheel.read("replicate/defaults/general.pt") == (ROOT / "policies/general.pt").read_bytes()
 
 
 def test_ctrl_c_wrapped_by_a_library_is_still_an_interruption(monkeypatch, capsys):

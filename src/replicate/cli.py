@@ -318,8 +318,22 @@ def cmd_cover(args: argparse.Namespace) -> int:
 
     params = load_params(args.params, overrides(args.set))
     check_seed(args.seed)
-    if args.episodes < 1:
-        raise ConfigError(f"--episodes must be at least 1, got {args.episodes}")
+    if args.method == "general":
+        if args.episodes is not None:
+            raise ConfigError("--episodes goes with --method cr; the general policy is fine-tuned with --finetune "
+                              "EPISODES")
+        if args.finetune < 0:
+            raise ConfigError(f"--finetune must be 0 (zero-shot) or a number of episodes, got {args.finetune}")
+        args.policy = general_policy_file(args.policy)
+        from .evaluate import general_policy
+
+        general_policy(args.policy)  # refused by name before anything is written
+    else:
+        if args.policy is not None or args.finetune:
+            raise ConfigError("--policy and --finetune go with --method general")
+        args.episodes = 2000 if args.episodes is None else args.episodes
+        if args.episodes < 1:
+            raise ConfigError(f"--episodes must be at least 1, got {args.episodes}")
     if args.radius_m is not None:
         positive(args.radius_m, "--radius-m")
     if args.n_agents is not None and not 1 <= args.n_agents <= MAX_AGENTS:
@@ -337,20 +351,44 @@ def cmd_cover(args: argparse.Namespace) -> int:
     cov, lloyd = s["coverage"], s["lloyd_coverage"]
     print(f"{s['region']}: {s['n_agents']} buoys of radius {s['radius_m']:.3g} m on {s['area_m2']:.4g} m² "
           f"({s['utm_crs']}, 1 sim m = {s['scale_m_per_sim_m']:.4g} m), T = {s['episode_length']}")
+    if args.method == "general":
+        best = s["baselines"]["best_layout"]["coverage"]["mean"]
+        lloyd_name = "tuned Lloyd" if "lloyd_tuned" in s["baselines"] else "Lloyd"
+        print(f"general policy{' fine-tuned' if args.finetune else ', zero-shot'}: coverage {cov['mean']:.3f} "
+              f"(95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over evaluation episodes) vs {lloyd_name} {lloyd['mean']:.3f} "
+              f"({s['ratio_to_lloyd']:.0%}) and the best layout {best:.3f} ({s['ratio_to_best']:.0%}); "
+              f"no buoy left the water by more than {s['max_outside_m']:.3g} m; wrote {out}/")
+        return 0
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over evaluation episodes of this one "
           f"trained policy; another training seed can land outside it) vs Lloyd {lloyd['mean']:.3f}: "
           f"{s['ratio_to_lloyd']:.0%} of the Lloyd layout; wrote {out}/")
     return 0
 
 
+def general_policy_file(path: str | None) -> Path:
+    """The general policy to cover with: ``path``, or the one installed with the package."""
+    from .config import packaged
+
+    policy = Path(path) if path is not None else packaged("general.pt")
+    if not policy.is_file():
+        raise ConfigError(f"--policy {policy}: no such file; give a general policy (`replicate export` of a general "
+                          "run, or policies/general.pt of the pipeline)" if path else
+                          f"{policy}: the installed general policy is missing; reinstall the package, or give "
+                          "--policy FILE")
+    return policy
+
+
 def cover_into(args: argparse.Namespace, params: Params, out: Path, tempfile) -> dict:
-    from .waterbody import cover, outline_file
+    from .waterbody import cover, cover_general, outline_file
 
     with tempfile.TemporaryDirectory() as tmp:
         path = outline_file(args.region, args.place, args.name, Path(tmp))
         if args.place:
             artifacts.atomic_write_bytes(out / "outline.geojson", path.read_bytes())
             path = out / "outline.geojson"
+        if args.method == "general":
+            return cover_general(path, params, out, args.policy, args.finetune, args.seed, args.n_agents,
+                                 args.radius_m, not args.no_progress)
         return cover(path, params, out, args.episodes, args.seed, args.n_agents, args.radius_m, args.config,
                      not args.no_progress)
 
@@ -564,13 +602,24 @@ def build_parser() -> argparse.ArgumentParser:
     tg.add_argument("--no-progress", action="store_true", help="no progress bar")
     tg.set_defaults(func=cmd_train_general)
 
-    c = sub.add_parser("cover", help="train CR-MARL on any waterbody and compare with the Lloyd layout", **verb)
+    c = sub.add_parser("cover", help="cover any waterbody with the general policy (or CR-MARL trained there) and "
+                                     "compare with the baselines", **verb)
     c.add_argument("--region", default=None, help="vector file (any CRS) or OSM XML (.osm) of the outline")
     c.add_argument("--place", default=None, help="an OSM place name (needs the network)")
     c.add_argument("--name", default=None, help="the water feature's name (OSM place or .osm file)")
-    c.add_argument("--episodes", type=int, default=2000, help="training episodes (rounded to the config's n_envs)")
-    c.add_argument("--seed", type=int, default=0, help="training seed, 0 to 2**32 - 1")
-    c.add_argument("--config", default="tuned", help="configuration in params.yaml")
+    c.add_argument("--method", choices=("general", "cr"), default="general",
+                   help="general: the general policy, zero-shot or --finetune'd (seconds to minutes); cr: CR-MARL "
+                        "trained from scratch on this lake (--config, --episodes)")
+    c.add_argument("--policy", default=None, metavar="FILE",
+                   help="--method general: a general policy file (default: the one installed with the package, "
+                        "policies/general.pt)")
+    c.add_argument("--finetune", type=int, default=0, metavar="EPISODES",
+                   help="--method general: train the policy on this lake for EPISODES first; it keeps the starting "
+                        "weights unless training beats them on validation starts")
+    c.add_argument("--episodes", type=int, default=None,
+                   help="--method cr: training episodes (default 2000, rounded to the config's n_envs)")
+    c.add_argument("--seed", type=int, default=0, help="training seed (--finetune, --method cr), 0 to 2**32 - 1")
+    c.add_argument("--config", default="tuned", help="--method cr: configuration in params.yaml")
     c.add_argument("--n-agents", type=int, default=None, help="number of buoys, 1 to 200 (default: world.n_agents)")
     c.add_argument("--radius-m", type=float, default=None,
                    help="real scale: coverage radius in metres (default: the paper's 9 m² scale)")

@@ -233,14 +233,17 @@ def general_baselines(params: Params, gains: dict | None) -> tuple[dict[str, bas
 
 
 def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
-                    lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False) -> dict:
+                    lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False,
+                    seeds: dict[str, str | Path] | None = None) -> dict:
     """A general policy (``export.export_general``) on ``region`` with ``n_agents`` buoys, zero-shot: behind the
     wall, on its local sensors, ``evaluate.episodes`` episodes from the evaluation seed at ``start``, losing
     ``lose`` buoys half-way, in a uniform ``current`` (m/s). Beside it, under the same physics, starts and events,
-    the baselines of ``general_baselines`` and the best layout of the buoys left in service (``best_layout``: no
-    physics, the limit). → coverage (mean, lo, hi, n over episodes), the baselines', ``ratio_to_lloyd``,
-    ``ratio_to_best`` and ``max_outside_m``: the largest distance of any buoy outside the water at any step of
-    any episode."""
+    the baselines of ``general_baselines`` (gains from the policy's metadata) and the best layout of the buoys
+    left in service (``best_layout``: no physics, the limit). → coverage (mean, lo, hi, n over episodes), the
+    baselines', ``ratio_to_lloyd``, ``ratio_to_best`` and ``max_outside_m``: the largest distance of any buoy
+    outside the water at any step of any episode. ``seeds`` ({label: policy file}, e.g. every trained seed of
+    the general policy) are run on the same episodes, under ``"seeds"`` with the same fields; the baselines run
+    once for all."""
     import dataclasses
 
     from .best_layout import best_coverage
@@ -251,37 +254,81 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     from .worlds import horizon, world_env
 
     module, meta = general_policy(policy_path)
+    others = {label: general_policy(path) for label, path in (seeds or {}).items()}
     ev = params.evaluate
     steps = horizon(params.general, region, params.world.region_area)
-    config = dataclasses.replace(params.general, episode_length=steps, sensors=SensorsConfig(**meta["sensor_config"]))
 
-    def general(env):
-        with torch.no_grad():
-            return module(torch.as_tensor(env.observe())).numpy()
-
-    out = {"kind": "general policy", "policy": str(policy_path), "region": region.name, "n_agents": n_agents,
-           "start": start, "lose": lose, "current": list(current) if current else None, "steps": steps,
-           "episodes": ev.episodes, "baselines": {}}
-    rivals, how = general_baselines(params, meta.get("baseline_gains"))
-    for name, policy in (("general", general), *rivals.items()):
-        env = world_env(params, config, region, n_agents, ev.episodes, 0, reward=False, sensors=name == "general")
+    def episodes(policy, sensors: SensorsConfig | None) -> np.ndarray:
+        """Every buoy's position at every step [T + 1, E, N, 2] and the live buoys' last [E, N_live, 2]."""
+        config = dataclasses.replace(params.general, episode_length=steps, sensors=sensors or params.general.sensors)
+        env = world_env(params, config, region, n_agents, ev.episodes, 0, reward=False, sensors=sensors is not None)
         if current is not None:
             env.set_current(Current.uniform(np.broadcast_to(np.asarray(current, float), (ev.episodes, 2))))
         trace = rollout(env, policy, steps, ev.seed, StartsConfig(start=start, lose=lose))
-        live = trace["live"]  # SPEC §8's exact coverage, of the buoys still in service
-        coverage = mean_interval(metrics.coverage_fraction(region.polygon, live, params.coverage.radius,
-                                                           params.coverage.edges))
-        if name == "general":
-            out["coverage"] = coverage
-            out["max_outside_m"] = float(distance_outside(region.polygon, trace["positions"]).max()) * region.scale
-        else:
-            out["baselines"][name] = {"coverage": coverage, "gains": how}
+        return trace["positions"], trace["live"]
+
+    def coverage(live: np.ndarray) -> dict:  # SPEC §8's exact coverage, of the buoys still in service
+        return mean_interval(metrics.coverage_fraction(region.polygon, live, params.coverage.radius,
+                                                       params.coverage.edges))
+
+    def learned(module, meta) -> dict:
+        positions, live = episodes(fleet_policy(module), SensorsConfig(**meta["sensor_config"]))
+        return {"coverage": coverage(live),
+                "max_outside_m": float(distance_outside(region.polygon, positions).max()) * region.scale}
+
+    out = {"kind": "general policy", "policy": str(policy_path), "region": region.name, "n_agents": n_agents,
+           "start": start, "lose": lose, "current": list(current) if current else None, "steps": steps,
+           "episodes": ev.episodes, **learned(module, meta), "baselines": {}}
+    if others:
+        out["seeds"] = {label: learned(*policy) for label, policy in others.items()}
+    rivals, how = general_baselines(params, meta.get("baseline_gains"))
+    for name, policy in rivals.items():
+        out["baselines"][name] = {"coverage": coverage(episodes(policy, None)[1]), "gains": how}
     best = best_coverage(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges)
     out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
     lloyd = out["baselines"]["lloyd_tuned" if "lloyd_tuned" in rivals else "lloyd"]["coverage"]["mean"]
     out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None
     out["ratio_to_best"] = out["coverage"]["mean"] / best if best > 0 else None
     return out
+
+
+def fleet_policy(module) -> baselines.Policy:
+    """A general policy's TorchScript module as a deterministic policy of an environment's local sensors."""
+    def policy(env: CoverageEnv) -> np.ndarray:
+        with torch.no_grad():
+            return module(torch.as_tensor(env.observe())).numpy()
+
+    return policy
+
+
+def general_episode(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str,
+                    lose: int = 0, current: tuple[float, float] | None = None,
+                    seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """One episode of a general policy as ``evaluate_policy`` runs it (the wall, its sensors, the event) for
+    the figures: positions [T + 1, N, 2] and the buoys in service [T + 1, N]."""
+    import dataclasses
+
+    from .config import SensorsConfig
+    from .currents import Current
+    from .worlds import horizon, world_env
+
+    module, meta = general_policy(policy_path)
+    steps = horizon(params.general, region, params.world.region_area)
+    config = dataclasses.replace(params.general, episode_length=steps, sensors=SensorsConfig(**meta["sensor_config"]))
+    env = world_env(params, config, region, n_agents, 1, 0, reward=False)
+    if current is not None:
+        env.set_current(Current.uniform(np.asarray([current], float)))
+    seed = params.evaluate.seed if seed is None else seed
+    env.reset(seed, start=start)
+    loss_rng, act = np.random.default_rng([seed, 1]), fleet_policy(module)  # the losses of ``rollout``
+    trace, alive = [env.pos[0].copy()], [np.ones(n_agents, bool)]
+    for t in range(steps):
+        if lose and t == steps // 2:
+            env.lose(lose, loss_rng)
+        env.step(act(env))
+        trace.append(env.pos[0].copy())
+        alive.append(np.ones(n_agents, bool) if env.alive is None else env.alive[0].copy())
+    return np.stack(trace), np.stack(alive)
 
 
 def general_policy(path: str | Path):

@@ -27,6 +27,7 @@ from .config import GeneralConfig, Params, to_dict
 from .currents import random_current
 from .env import observation_columns
 from .maddpg import NStepWriter
+from .regions import Region
 from .shared_maddpg import FleetBatch, SharedMADDPG
 from .worlds import World, make_worlds, world_env
 
@@ -98,19 +99,34 @@ class GeneralTrainer:
     """One seed of the general policy (module docstring). ``run`` trains and returns the run's summary."""
 
     def __init__(self, params: Params, seed: int, out: str | Path, progress: bool = True,
-                 config: GeneralConfig | None = None):
+                 config: GeneralConfig | None = None, worlds: list[tuple[Region, int]] | None = None,
+                 actor: dict | None = None):
+        """``worlds`` [(region, N)] replace the training worlds of ``config`` (fine-tuning on one lake: its
+        validation starts from the corner patch and scattered); ``actor``, a state dict of ``SharedActor``, starts
+        the actor (and its target) from trained weights, validated before the first batch so that the run keeps
+        them unless training improves on them."""
         self.params, self.gc, self.seed, self.out = params, config or params.general, seed, Path(out)
         self.progress = progress
         streams = np.random.SeedSequence(seed).spawn(5)  # worlds, events, noise, sampling, validation
         self.rng_events = np.random.default_rng(streams[1])
         self.noise = torch.Generator().manual_seed(int(streams[2].generate_state(1)[0]))
         self.rng_sample = np.random.default_rng(streams[3])
-        self.worlds = make_worlds(params, self.gc, np.random.default_rng(streams[0]), self.gc.n_envs)
+        if worlds is None:
+            self.worlds = make_worlds(params, self.gc, np.random.default_rng(streams[0]), self.gc.n_envs)
+        else:
+            rng = np.random.default_rng(streams[0])
+            self.worlds = [World(r, n, world_env(params, self.gc, r, n, self.gc.n_envs,
+                                                 np.random.SeedSequence(int(rng.integers(2**31))))) for r, n in worlds]
+        self.corner_validation = {w.region.name for w in self.worlds} if worlds else set(self.gc.regions)
         self.validation = self.validation_worlds(np.random.default_rng(streams[4]))
         columns = observation_columns("local", self.gc.sensors)
         self.rays = shore_rays(columns)
         obs_dim = len(columns)
         self.agent = SharedMADDPG(obs_dim, 2, self.gc.learner, seed=seed)
+        self.initial_actor = actor
+        if actor is not None:
+            self.agent.actor.load_state_dict(actor)
+            self.agent.actor_target.load_state_dict(actor)
         self.replay = FleetReplay(self.gc.buffer_size, max(w.n_agents for w in self.worlds), obs_dim)
         self.rows: list[list] = []
         self.best: dict | None = None
@@ -122,7 +138,7 @@ class GeneralTrainer:
         out = []
         for w in self.worlds:
             env = world_env(self.params, self.gc, w.region, w.n_agents, 4, 0, reward=False)
-            starts = ("corner", "random") if w.region.name in self.gc.regions else ("random",)
+            starts = ("corner", "random") if w.region.name in self.corner_validation else ("random",)
             out += [(World(w.region, w.n_agents, env), s, int(rng.integers(2**31))) for s in starts]
         return out
 
@@ -130,12 +146,15 @@ class GeneralTrainer:
         gc = self.gc
         batches = gc.episodes // gc.n_envs
         t0, c0 = time.perf_counter(), time.process_time()
+        if self.initial_actor is not None:
+            self.validate(0)  # the starting weights are the ones to beat
         for batch in tqdm(range(batches), disable=not self.progress, unit="batch"):
             sigma = noise_sigma(gc, batch / batches)
             self.agent.scale_learning_rates(1.0 - (1.0 - gc.lr_end) * batch / batches)
             world = self.worlds[batch % len(self.worlds)]
             row = self.play(world, sigma)
-            score = self.validate() if (batch + 1) % len(self.worlds) == 0 or batch == batches - 1 else math.nan
+            due = (batch + 1) % len(self.worlds) == 0 or batch == batches - 1
+            score = self.validate((batch + 1) * gc.n_envs) if due else math.nan
             self.rows.append([batch, (batch + 1) * gc.n_envs, world.region.name, world.n_agents, *row, sigma, score])
         return self.finish(time.perf_counter() - t0, time.process_time() - c0)
 
@@ -185,8 +204,9 @@ class GeneralTrainer:
             yield self.agent.update(self.replay.sample(self.rng_sample, gc.batch_size))
 
     @torch.no_grad()
-    def validate(self) -> float:
-        """Mean final coverage of the deterministic policy over the validation starts; keeps the best actor."""
+    def validate(self, episodes: int) -> float:
+        """Mean final coverage of the deterministic policy over the validation starts; keeps the best actor
+        (trained for ``episodes``)."""
         scores = []
         for world, start, seed in self.validation:
             env = world.env
@@ -197,7 +217,7 @@ class GeneralTrainer:
         score = float(np.mean(scores))
         if self.best is None or score > self.best["validation"]:
             state = {k: v.clone() for k, v in self.agent.actor.state_dict().items()}
-            self.best = {"validation": score, "episodes": (len(self.rows) + 1) * self.gc.n_envs, "actor": state}
+            self.best = {"validation": score, "episodes": episodes, "actor": state}
         return score
 
     def finish(self, wall: float, cpu: float) -> dict:

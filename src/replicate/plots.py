@@ -43,6 +43,10 @@ def draw_polygon(ax, poly, **kw):
 
 def draw_region(ax, region: Polygon, patch: Polygon | None = None):
     draw_polygon(ax, region, facecolor="#d6ecfa", edgecolor="#1f4e79", linewidth=1.5, label="region")
+    for part in getattr(region, "geoms", [region]):
+        for hole in part.interiors:  # islands are land
+            x, y = hole.xy
+            ax.fill(x, y, facecolor="#e8e2cf", edgecolor="#1f4e79", linewidth=1.0)
     if patch is not None:
         draw_polygon(ax, patch, facecolor="none", edgecolor="k", linestyle="--", linewidth=1, label="start patch")
     ax.set_aspect("equal")
@@ -272,4 +276,23 @@ def bedok_map(lonlat: Polygon, utm: Polygon, utm_crs: str, source: str, attribut
     fig.subplots_adjust(wspace=0.35)
     fig.suptitle(f"Bedok Reservoir — outline source: {source}", fontsize=11)
     fig.text(0.5, -0.02, attribution, ha="center", fontsize=7, wrap=True)
+    return save(fig, path)
+
+
+def general_lakes(panels: list[dict], radius: float, edges: int, path, title: str) -> Path:
+    """The general policy on several lakes side by side: each panel a dict with ``region`` (Polygon), ``trace``
+    [T + 1, N, 2] (one episode) and ``title``; trails, final coverage polygons, final positions."""
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 5))
+    for ax, panel in zip(np.atleast_1d(axes), panels, strict=True):
+        trace = panel["trace"]
+        draw_region(ax, panel["region"])
+        for k in range(trace.shape[1]):
+            colour = AGENT_COLOURS[k % 10]
+            ax.plot(trace[:, k, 0], trace[:, k, 1], color=colour, linewidth=0.7, alpha=0.6)
+        for k, c in enumerate(coverage_polygons(trace[-1], radius, edges)):
+            draw_polygon(ax, c, facecolor=AGENT_COLOURS[k % 10], alpha=0.35, edgecolor=AGENT_COLOURS[k % 10])
+        ax.plot(trace[0, :, 0], trace[0, :, 1], "k+", ms=4, alpha=0.5)
+        ax.plot(trace[-1, :, 0], trace[-1, :, 1], "k.", ms=4)
+        ax.set_title(panel["title"], fontsize=9)
+    fig.suptitle(title, fontsize=11, y=1.06)  # above the panels' two-line titles
     return save(fig, path)

@@ -1,5 +1,13 @@
-"""Cover any waterbody: outline (file or OSM place) → UTM → region → tuned CR-MARL → metrics, spread plot, and
-the comparison with the Lloyd layout (``replicate cover``).
+"""Cover any waterbody: outline (file or OSM place) → UTM → region → a policy → metrics, spread plot, and the
+comparison with the baselines (``replicate cover``).
+
+Two ways to get the policy:
+
+* ``general`` (default): the general policy (``policies/general.pt``, installed with the package), zero-shot in
+  seconds, or fine-tuned on this lake for ``finetune`` episodes (``cover_general``); compared with tuned naive
+  swarming, tuned Lloyd, geodesic Lloyd and the best layout under the same physics (the shore as a wall).
+* ``cr``: per-region CR-MARL trained from scratch with a configuration of params.yaml (``cover``); compared with
+  the converged Lloyd layout.
 
 Two scales:
 
@@ -104,5 +112,64 @@ def cover(
         "ratio_to_lloyd": method["coverage"]["mean"] / max(lloyd["coverage"]["mean"], 1e-12),
         "notes": list(region.notes),
     }
+    artifacts.write_json(out / "summary.json", summary)
+    return summary
+
+
+def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune: int = 0, seed: int = 0,
+                  n_agents: int | None = None, radius_m: float | None = None, progress: bool = True) -> dict:
+    """The general policy on the waterbody in ``path``: zero-shot, or fine-tuned there first for ``finetune``
+    episodes (``general_train`` on this one lake, from the policy's weights, keeping the best-validated actor,
+    which is the starting one unless training beats it; written to ``out/finetune`` and ``out/policy.pt``).
+    Evaluated from the corner patch with its baselines (``evaluate.evaluate_policy``); ``out/spread.png`` and
+    ``out/summary.json``."""
+    from .config import SensorsConfig
+    from .evaluate import evaluate_policy, general_episode, general_policy
+    from .export import export_general
+    from .general_train import GeneralTrainer
+    from .worlds import horizon
+
+    region, params = scaled_setup(path, params, n_agents, radius_m)
+    n = params.world.n_agents
+    module, meta = general_policy(policy)
+    steps = horizon(params.general, region, params.world.region_area)
+    if finetune:
+        gc = params.general  # the policy's own sensors, this lake's horizon
+        gc = dataclasses.replace(gc, episodes=max(gc.n_envs, finetune - finetune % gc.n_envs), episode_length=steps,
+                                 sensors=SensorsConfig(**meta["sensor_config"]))
+        trainer = GeneralTrainer(params, seed, out / "finetune", progress, gc, worlds=[(region, n)],
+                                 actor=dict(module.state_dict()))
+        trained = trainer.run()
+        policy = out / "policy.pt"
+        export_general(out / "finetune" / "actor.pt", policy, params.world.sensitivity, meta.get("baseline_gains"))
+    result = evaluate_policy(policy, region, params, n, "corner", progress=progress)
+    c = params.coverage
+    trace, _ = general_episode(policy, region, params, n, "corner")
+    lloyd = result["baselines"].get("lloyd_tuned", result["baselines"].get("lloyd"))["coverage"]["mean"]
+    plots.spread(region.polygon, start_patch(region.polygon, params.world.start_patch), trace[-1], c.radius,
+                 c.edges, out / "spread.png", f"general policy{' fine-tuned' if finetune else ''} on {region.name}: "
+                 "an evaluation episode", trace, f"coverage {result['coverage']['mean']:.2f}, Lloyd {lloyd:.2f}")
+    summary = {
+        "region": region.name,
+        "utm_crs": region.utm_crs,
+        "scale_m_per_sim_m": region.scale,
+        "area_m2": region.area * region.scale**2,
+        "n_agents": n,
+        "radius_m": c.radius * region.scale,
+        "episode_length": steps,
+        "policy": str(policy),
+        "finetune_episodes": trained["general"]["episodes"] if finetune else 0,
+        "coverage": result["coverage"],
+        "baselines": result["baselines"],
+        "lloyd_coverage": result["baselines"]["lloyd_tuned" if "lloyd_tuned" in result["baselines"] else "lloyd"][
+            "coverage"],
+        "ratio_to_lloyd": result["ratio_to_lloyd"],
+        "ratio_to_best": result["ratio_to_best"],
+        "max_outside_m": result["max_outside_m"],
+        "notes": list(region.notes),
+    }
+    if finetune:
+        summary["finetune"] = {k: trained[k] for k in ("selected_episode", "selected_validation_coverage",
+                                                        "cpu_seconds")}
     artifacts.write_json(out / "summary.json", summary)
     return summary

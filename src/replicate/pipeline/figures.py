@@ -13,14 +13,19 @@ from .. import plots
 from ..config import load_params
 from ..env import start_patch
 from ..evaluate import BASELINES, read_curve
+from ..geometry import coverage_fraction_exact
 from ..metrics import coverage_ceiling
 from ..regions import make_region
 from ..train import CURVE
 from .evaluation import not_in_matrix
+from .general import KEPT_POLICY
 
 
-def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir: str, outline_path: str) -> list:
-    """Every figure of SPEC §9, one PNG per panel, for every configuration; returns the paths written."""
+def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir: str, outline_path: str,
+                 policies_dir: str | None = None) -> list:
+    """Every figure of SPEC §9, one PNG per panel, for every configuration, and with ``policies_dir`` (the
+    ``train_general`` folder; its suite in ``metrics_dir/general.json``) the general policy's; returns the
+    paths written."""
     from ..regions import region_from_file
 
     params = load_params(params_path)
@@ -111,6 +116,9 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
             written.append(animate_run(sorted(group)[0], params, regions[region_name],
                                        fig / f"anim_{config}_cr_{region_name}.gif"))
 
+    if policies_dir is not None:
+        written += general_figures(params, Path(policies_dir) / KEPT_POLICY, metrics_dir / "general.json", fig)
+
     outline = region_from_file(outline_path, area=None)
     import geopandas as gpd
 
@@ -119,6 +127,48 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
     written.append(plots.bedok_map(lonlat, utm, outline.utm_crs, describe_source(outline_path), outline.attribution,
                                    fig / "fig_bedok_map.png"))
     return [str(p) for p in written]
+
+
+def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[Path]:
+    """The general policy, one evaluation episode each: on three held-out lakes from scattered starts
+    (``fig_general_lakes.png``), and as GIFs through a loss of a share of the fleet at T/2
+    (``anim_general_lose.gif``) and through a drift (``anim_general_current.gif``), on Bedok with the paper's
+    fleet."""
+    from ..animate import animate_trace
+    from ..evaluate import general_episode
+    from .general import at_density, suite_lakes
+
+    su, c = params.general.suite, params.coverage
+    suite = json.loads(suite_path.read_text())["cells"]
+    lakes = suite_lakes(params)
+    n = max(su.lake_fleets)
+    held_out = sorted(name for name in lakes if name not in ("square", "rectangle", "bedok"))[:3]
+    panels = []
+    for name in held_out:
+        region = at_density(*lakes[name], n)
+        trace, _ = general_episode(policy, region, params, n, "random")
+        cell = next(x for x in suite if (x["region"], x["n_agents"], x["start"], x["event"]) == (name, n, "random",
+                                                                                                 "none"))
+        cover = coverage_fraction_exact(region.polygon, trace[-1][None], c.radius, c.edges)[0]
+        rival = {k: cell["baselines"][k]["coverage"]["mean"] for k in ("lloyd_tuned", "best_layout")}
+        panels.append({"region": region.polygon, "trace": trace, "title": (
+            f"{name}, N = {n}: coverage {cover:.2f} in this episode\nmean of {cell['coverage']['n']}: "
+            f"{cell['coverage']['mean']:.3f}; lloyd_tuned {rival['lloyd_tuned']:.3f}, "
+            f"best layout {rival['best_layout']:.3f}")})
+    written = [plots.general_lakes(panels, c.radius, c.edges, fig / "fig_general_lakes.png",
+                                   "The general policy on held-out lakes it never trained on (scattered starts, "
+                                   "crosses: where the buoys started)")]
+    bedok, buoys = make_region("bedok", params.regions["bedok"], params.world.region_area), params.world.n_agents
+    lose = max(1, int(buoys * su.lose_fraction))
+    trace, alive = general_episode(policy, bedok, params, buoys, "corner", lose=lose)
+    written.append(animate_trace(bedok.polygon, trace, alive, c.radius, c.edges,
+                                 f"general policy, Bedok, {lose} of {buoys} lost at T/2",
+                                 fig / "anim_general_lose.gif"))
+    flow = (su.current, 0.0)
+    trace, alive = general_episode(policy, bedok, params, buoys, "random", current=flow)
+    written.append(animate_trace(bedok.polygon, trace, alive, c.radius, c.edges, "general policy, Bedok, drift",
+                                 fig / "anim_general_current.gif", flow=np.asarray(flow)))
+    return written
 
 
 def describe_source(outline_path: str) -> str:

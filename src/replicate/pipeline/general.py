@@ -1,9 +1,10 @@
 """The general policy's stages: every seed of ``general.seeds`` trained in a process of its own, the
 best-validated one exported as the policy every lake gets; then that policy, zero-shot, on the evaluation suite.
 
-Layout: ``OUT/runs/general-sSEED/{actor.pt, curve.csv.gz, run.json}`` (``general_train``), ``OUT/general.pt`` (the
-exported policy of the seed with the best validation coverage, carrying the baselines' gains of
-``tuning.general_baselines``) and ``OUT/summary.json`` (each seed's validation and time, the one kept). A seed
+Layout: ``OUT/runs/general-sSEED/{actor.pt, curve.csv.gz, run.json}`` (``general_train``) and ``policy.pt`` (the
+seed's exported policy, carrying the baselines' gains of ``tuning.general_baselines``), ``OUT/general.pt`` (the
+policy of the seed with the best validation coverage, the one a user deploys) and ``OUT/summary.json`` (each
+seed's validation, time and policy, the one kept). A seed
 already finished with identical settings is kept, so adding seeds trains only the new ones.
 """
 
@@ -27,6 +28,8 @@ from ..regions import Region, make_region
 from ..train import training_process
 
 GENERAL_VERSION = 1  # raised when the general training's arithmetic changes: older runs are trained again
+KEPT_POLICY = "general.pt"  # the best-validated seed's policy, the one a user deploys
+SEED_POLICY = "policy.pt"  # each seed's exported policy, in its run folder
 
 
 def general_identity(params, seed: int) -> dict:
@@ -74,11 +77,16 @@ def train_general(params_path: str, out_dir: str, gains_path: str | None, worker
     wall = time.perf_counter() - t0
     best = max(runs, key=lambda r: r["selected_validation_coverage"])
     gains = json.loads(Path(gains_path).read_text()) if gains_path else None
-    export_general(out / "runs" / f"general-s{best['seed']}" / "actor.pt", out / "general.pt",
-                   params.world.sensitivity, gains)
+    for run in runs:  # every seed exported, for the suite to judge each one
+        run_dir = out / "runs" / f"general-s{run['seed']}"
+        export_general(run_dir / "actor.pt", run_dir / SEED_POLICY, params.world.sensitivity, gains)
+    kept = out / "runs" / f"general-s{best['seed']}" / SEED_POLICY
+    artifacts.atomic_write_bytes(out / KEPT_POLICY, kept.read_bytes())
     summary = {"kept_seed": best["seed"], "wall_seconds": round(wall, 1), "runs": [
         {k: r.get(k) for k in ("seed", "selected_episode", "selected_validation_coverage", "cpu_seconds",
-                               "wall_seconds")} | {"skipped": r.get("skipped", False)} for r in runs]}
+                               "wall_seconds")} | {"skipped": r.get("skipped", False),
+                                                   "policy": f"runs/general-s{r['seed']}/{SEED_POLICY}"}
+        for r in runs]}
     artifacts.write_json(out / "summary.json", summary)
     return summary
 
@@ -127,7 +135,7 @@ def suite_cells(params) -> list[SuiteCell]:
 
 
 def _evaluate_lake(job: dict) -> list[dict]:
-    """Every cell of one lake and fleet (a job of ``evaluate_general``): the policy and its baselines
+    """Every cell of one lake and fleet (a job of ``evaluate_general``): every seed's policy and the baselines
     (``evaluate.evaluate_policy``), the best layout computed once per fleet left in service."""
     from ..evaluate import evaluate_policy
 
@@ -137,28 +145,42 @@ def _evaluate_lake(job: dict) -> list[dict]:
     params = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=su.episodes))
     region, drawn_for = suite_lakes(params)[job["region"]]
     region = at_density(region, drawn_for, job["n_agents"])
+    kept, *others = job["policies"].items()  # the kept seed's, then the others'
     out = []
     for cell in map(lambda c: SuiteCell(**c), job["cells"]):
         lose = max(1, int(cell.n_agents * su.lose_fraction)) if cell.event == "lose" else 0
         current = (su.current, 0.0) if cell.event == "current" else None
-        result = evaluate_policy(job["policy"], region, params, cell.n_agents, cell.start, lose, current)
-        out.append({**dataclasses.asdict(cell), "lose": lose, "coverage": result["coverage"],
+        result = evaluate_policy(kept[1], region, params, cell.n_agents, cell.start, lose, current,
+                                 seeds=dict(others))
+        seeds = {kept[0]: {k: result[k] for k in ("coverage", "max_outside_m")}, **result.get("seeds", {})}
+        out.append({**dataclasses.asdict(cell), "lose": lose, "coverage": result["coverage"], "seeds": seeds,
                     "baselines": result["baselines"], "max_outside_m": result["max_outside_m"],
                     "steps": result["steps"]})
     return out
 
 
-def evaluate_general(params_path: str, policy: str, out: str, workers: int, executor: str = "local") -> dict:
-    """The general policy on every cell of the suite (``suite_cells``), one job per lake and fleet → ``out``
-    (JSON: the cells, with the policy's and every baseline's coverage)."""
+def seed_policies(policies_dir: str | Path) -> dict[str, str]:
+    """{"sSEED": policy file} of a ``train_general`` folder, the kept seed first (``OUT/summary.json``)."""
+    root = Path(policies_dir)
+    summary = json.loads((root / "summary.json").read_text())
+    runs = sorted(summary["runs"], key=lambda r: r["seed"] != summary["kept_seed"])
+    return {f"s{r['seed']}": str(root / r["policy"]) for r in runs}
+
+
+def evaluate_general(params_path: str, policies_dir: str, out: str, workers: int, executor: str = "local") -> dict:
+    """Every seed's policy of ``policies_dir`` (``train_general``) on every cell of the suite (``suite_cells``),
+    one job per lake and fleet → ``out`` (JSON: the cells, with the kept policy's, each seed's and every
+    baseline's coverage)."""
     params = load_params(params_path)
+    policies = seed_policies(policies_dir)
     groups: dict[tuple[str, int], list[dict]] = {}
     for cell in suite_cells(params):
         groups.setdefault((cell.region, cell.n_agents), []).append(dataclasses.asdict(cell))
-    jobs = [{"params": params_path, "policy": policy, "region": r, "n_agents": n, "cells": cells}
+    jobs = [{"params": params_path, "policies": policies, "region": r, "n_agents": n, "cells": cells}
             for (r, n), cells in sorted(groups.items(), key=lambda kv: -kv[0][1])]  # the largest fleets first
     t0 = time.perf_counter()
     cells = [c for group in map_jobs(_evaluate_lake, jobs, executor, workers) for c in group]
-    result = {"policy": policy, "wall_seconds": round(time.perf_counter() - t0, 1), "cells": cells}
+    result = {"policy": str(Path(policies_dir) / KEPT_POLICY), "seeds": list(policies),
+              "wall_seconds": round(time.perf_counter() - t0, 1), "cells": cells}
     artifacts.write_json(out, result)
     return result

@@ -282,64 +282,99 @@ NAMED = ("square", "rectangle", "bedok")
 YARDSTICKS = ("naive_tuned", "lloyd_tuned", "geodesic_lloyd", "best_layout")
 
 
+def seed_coverages(cell: dict) -> dict[str, float]:
+    """{seed: mean coverage} of a suite cell: every trained seed's policy (the kept policy alone in a file
+    without seeds)."""
+    seeds = cell.get("seeds") or {"kept": {"coverage": cell["coverage"], "max_outside_m": cell["max_outside_m"]}}
+    return {label: r["coverage"]["mean"] for label, r in seeds.items()}
+
+
 def general_verdicts(cells: list[dict], t) -> list[tuple[str, str, str]]:
-    """(bar, how many cells meet it, verdict) of the general policy's targets (``report.general``, ``t``)."""
-    def cov(c, name=None):
-        return c["coverage"]["mean"] if name is None else c["baselines"][name]["coverage"]["mean"]
+    """(bar, how many cells meet it, verdict) of the general policy's targets (``report.general``, ``t``): a cell
+    meets a bar when every seed's policy does."""
+    def rival(c, name):
+        return c["baselines"][name]["coverage"]["mean"]
+
+    def every_seed(c, bar) -> bool:
+        return all(bar(v) for v in seed_coverages(c).values())
 
     still = [c for c in cells if c["event"] == "none"]
-    key = {(c["region"], c["n_agents"], c["start"]): c for c in still}
+    key = {(c["region"], c["n_agents"], c["start"]): seed_coverages(c) for c in still}
+
+    def keeps(c, share) -> bool:  # each seed against its own still-water coverage
+        own = key[(c["region"], c["n_agents"], c["start"])]
+        return all(v >= share * own[s] for s, v in seed_coverages(c).items())
+
     checks = [
         (f"still water: ≥ {t.of_lloyd:.0%} of lloyd_tuned", still,
-         [cov(c) >= t.of_lloyd * cov(c, "lloyd_tuned") for c in still]),
-        ("still water: above naive_tuned", still, [cov(c) > cov(c, "naive_tuned") for c in still]),
+         [every_seed(c, lambda v, c=c: v >= t.of_lloyd * rival(c, "lloyd_tuned")) for c in still]),
+        ("still water: above naive_tuned", still,
+         [every_seed(c, lambda v, c=c: v > rival(c, "naive_tuned")) for c in still]),
         (f"still water: ≥ {t.of_best:.0%} of the best layout", still,
-         [cov(c) >= t.of_best * cov(c, "best_layout") for c in still]),
+         [every_seed(c, lambda v, c=c: v >= t.of_best * rival(c, "best_layout")) for c in still]),
         (f"lakes where lloyd_tuned is ≥ {t.narrow_gap} below the best layout: above lloyd_tuned",
-         narrow := [c for c in still if cov(c, "best_layout") - cov(c, "lloyd_tuned") >= t.narrow_gap],
-         [cov(c) > cov(c, "lloyd_tuned") for c in narrow]),
+         narrow := [c for c in still if rival(c, "best_layout") - rival(c, "lloyd_tuned") >= t.narrow_gap],
+         [every_seed(c, lambda v, c=c: v > rival(c, "lloyd_tuned")) for c in narrow]),
         (f"buoys lost at T/2: ≥ {t.lose_of_lloyd:.0%} of what lloyd_tuned re-covers",
          lose := [c for c in cells if c["event"] == "lose"],
-         [cov(c) >= t.lose_of_lloyd * cov(c, "lloyd_tuned") for c in lose]),
+         [every_seed(c, lambda v, c=c: v >= t.lose_of_lloyd * rival(c, "lloyd_tuned")) for c in lose]),
         (f"drift: ≥ {t.current_of_still:.0%} of its own still-water coverage",
-         drift := [c for c in cells if c["event"] == "current"],
-         [cov(c) >= t.current_of_still * cov(key[(c["region"], c["n_agents"], c["start"])]) for c in drift]),
-        ("no buoy ever outside the water", cells, [c["max_outside_m"] == 0 for c in cells]),
+         drift := [c for c in cells if c["event"] == "current"], [keeps(c, t.current_of_still) for c in drift]),
+        ("no buoy ever outside the water", cells,
+         [all(r["max_outside_m"] == 0 for r in (c.get("seeds") or {"kept": c}).values()) for c in cells]),
     ]
     return [(bar, f"{sum(ok)} of {len(which)}", "met" if all(ok) else "not met") for bar, which, ok in checks
             if which]
 
 
-def general_rows(cells: list[dict]) -> list[str]:
+def per_region_cr(summary: dict, c: dict, n_agents: int, lose: int) -> str:
+    """The per-region `tuned` CR-MARL of the same region, fleet, start and event, from its robustness scenarios
+    (its own physics, not the wall), as mean [CI] over seeds; "—" where it has none."""
+    runs = summary.get("runs", {}).get(f"tuned/cr/{c['region']}", {}).get("robustness", {})
+    scenario = {("none", "corner"): "corner", ("none", "random"): "random",
+                ("lose", "corner"): f"lose_{c.get('lose')}"}.get((c["event"], c["start"]))
+    if c["n_agents"] != n_agents or scenario not in runs or (c["event"] == "lose" and c.get("lose") != lose):
+        return "—"
+    return fmt(runs[scenario]["coverage"])
+
+
+def general_rows(cells: list[dict], summary: dict | None = None, n_agents: int = 9, lose: int = 3) -> list[str]:
     """Markdown rows: every cell of the named regions, then the held-out lakes pooled per fleet and start (mean
-    over lakes, and the worst lake's ratio to lloyd_tuned)."""
-    def row(label, n, start, event, general, rivals, ratio):
-        return (f"| {label} | {n} | {start} | {event} | {general} | "
+    over lakes, and the worst lake's ratio to lloyd_tuned). The general policy's column is the kept seed's (its
+    interval over episodes); the next gives the range over every seed (over seeds of the mean over lakes); then
+    the per-region `tuned` CR-MARL where ``summary`` has it (``n_agents`` buoys, ``lose`` lost)."""
+    def row(label, n, start, event, general, seeds, cr, rivals, ratio):
+        return (f"| {label} | {n} | {start} | {event} | {general} | {min(seeds):.3f}-{max(seeds):.3f} | {cr} | "
                 + " | ".join(f"{v:.3f}" for v in rivals) + f" | {ratio} |")
 
     rows = []
     for c in cells:
         if c["region"] in NAMED:
             rivals = [c["baselines"][k]["coverage"]["mean"] for k in YARDSTICKS]
-            rows.append(row(c["region"], c["n_agents"], c["start"], c["event"], fmt(c["coverage"]), rivals,
-                            f"{c['coverage']['mean'] / rivals[1]:.3f}"))
+            rows.append(row(c["region"], c["n_agents"], c["start"], c["event"], fmt(c["coverage"]),
+                            list(seed_coverages(c).values()), per_region_cr(summary or {}, c, n_agents, lose),
+                            rivals, f"{c['coverage']['mean'] / rivals[1]:.3f}"))
     lakes: dict[tuple, list[dict]] = {}
     for c in cells:
         if c["region"] not in NAMED:
             lakes.setdefault((c["n_agents"], c["start"], c["event"]), []).append(c)
     for (n, start, event), group in sorted(lakes.items()):
         general = [c["coverage"]["mean"] for c in group]
+        per_seed = [seed_coverages(c) for c in group]
+        seeds = [sum(p[s] for p in per_seed) / len(group) for s in per_seed[0]]
         rivals = [sum(c["baselines"][k]["coverage"]["mean"] for c in group) / len(group) for k in YARDSTICKS]
         ratios = [c["coverage"]["mean"] / c["baselines"]["lloyd_tuned"]["coverage"]["mean"] for c in group]
         rows.append(row(f"{len(group)} held-out lakes (mean)", n, start, event,
-                        f"{sum(general) / len(general):.3f} ({min(general):.3f}-{max(general):.3f})", rivals,
+                        f"{sum(general) / len(general):.3f} ({min(general):.3f}-{max(general):.3f})", seeds, "—",
+                        rivals,
                         f"{sum(ratios) / len(ratios):.3f} (worst {min(ratios):.3f})"))
     return rows
 
 
-def general_section(params, general: dict) -> list[str]:
+def general_section(params, general: dict, summary: dict | None = None) -> list[str]:
     cells, t = general["cells"], params.report.general
     su = params.general.suite
+    seeds = ", ".join(general.get("seeds", [])) or "one"
     lines = ["## One policy for every lake", "",
              f"The general policy (`{general['policy']}`, one network trained once on the training worlds of "
              "`general`, local sensors only), zero-shot on lakes it never trained on, behind the shore wall: the "
@@ -347,14 +382,20 @@ def general_section(params, general: dict) -> list[str]:
              f"{su.held_out} held-out generated lakes at N ∈ {list(su.lake_fleets)} (each at its own density); "
              "starts in the corner patch or scattered; events: none, "
              f"{su.lose_fraction:.0%} of the fleet lost at T/2 (coverage of the rest at T), a uniform drift of "
-             f"{su.current} m/s. {su.episodes} episodes per cell from the evaluation seed; the interval is over "
-             "episodes of the one policy. naive_tuned and lloyd_tuned carry the gains tuned once on the "
+             f"{su.current} m/s. {su.episodes} episodes per cell from the evaluation seed. The general policy's "
+             "column is the deployed policy (the best-validated seed) with its interval over episodes; "
+             f"\"every seed\" is the range over the trained seeds ({seeds}), and a cell meets a bar only when "
+             "every seed does. naive_tuned and lloyd_tuned carry the gains tuned once on the "
              "training worlds (`tuning.general_baselines`), geodesic Lloyd Lloyd's; the best layout is the "
-             "offline limit for the buoys in service.", "",
+             "offline limit for the buoys in service. \"tuned CR\" is the per-region `tuned` CR-MARL of the "
+             "robustness table (its own training physics, not the wall; mean [CI] over its seeds), where a "
+             "scenario matches.", "",
              "| bar (`report.general`) | cells meeting it | verdict |", "|---|---|---|",
              *[f"| {bar} | {n} | **{v}** |" for bar, n, v in general_verdicts(cells, t)], "",
-             "| lake | N | start | event | general policy | naive_tuned | lloyd_tuned | geodesic Lloyd | best layout | "
-             "general / lloyd_tuned |", "|---|---|---|---|---|---|---|---|---|---|", *general_rows(cells), ""]
+             "| lake | N | start | event | general policy | every seed | tuned CR | naive_tuned | lloyd_tuned | "
+             "geodesic Lloyd | best layout | general / lloyd_tuned |", "|" + "---|" * 12,
+             *general_rows(cells, summary, params.world.n_agents,
+                           max(1, int(params.world.n_agents * params.general.suite.lose_fraction))), ""]
     return lines
 
 
@@ -496,7 +537,7 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
                   "| region | policy | " + " | ".join(f"`{s}`" for s in scenarios) + " |",
                   "|---|---|" + "---|" * len(scenarios), *rrows, ""]
     if general is not None:
-        lines += general_section(params, general)
+        lines += general_section(params, general, summary)
     ab = ablation_rows(summary)
     lines += ["## Ablation of `tuned` (leave one out)", ""]
     if ab:
