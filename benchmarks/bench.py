@@ -23,6 +23,8 @@
    seconds per 1,000 episodes end to end and one update at identical matrix shapes, as ratios
    (``benchmarks/benchmarl_side_by_side.py``; sections 3's VMAS and 5 need the ``bench`` extra, which
    ``make bench`` installs).
+6. One update of the general policy's learner (``shared_maddpg``: the shared actor and the pooled critic) on a
+   minibatch shaped as its training samples it, against its matmul floor, and where its time goes.
 
 Everything runs on one thread (``torch.set_num_threads(1)``), the budget of one core of the 2-core machine, and
 sections 0-3 with the allocator setting of the pipeline's training processes.
@@ -47,7 +49,9 @@ from replicate.maddpg import MADDPG, ReplayBuffer, clip_grad_per_agent, soft_upd
 from replicate.maddpg_loop import LoopMADDPG
 from replicate.pipeline.matrix import cell_seeds, matrix_cells
 from replicate.regions import make_region
+from replicate.shared_maddpg import FleetBatch, SharedMADDPG
 from replicate.train import Trainer, hold_freed_memory
+from replicate.worlds import baseline_worlds
 
 torch.set_num_threads(1)
 
@@ -134,17 +138,36 @@ def agent_and_batch(params, config: str) -> tuple[MADDPG, object]:
     return MADDPG(9, od, 2, cfg, "individual", seed=0), buf.sample(rng, cfg.batch_size)
 
 
-def update_gflop(params, config: str) -> float:
-    """Matmul GFLOP of one update of 9 agents (forward and backward), counted by torch's FlopCounterMode."""
+def general_agent_and_batch(params) -> tuple[SharedMADDPG, FleetBatch]:
+    """A fresh general policy's learner and one minibatch as its training samples it: ``general.batch_size``
+    transitions padded to the largest training fleet, each of a fleet size drawn from the training worlds'."""
+    gc = params.general
+    od = len(observation_columns("local", gc.sensors))
+    fleets = [n for _, n in baseline_worlds(params, gc)]
+    g = torch.Generator().manual_seed(0)
+    b, n_max = gc.batch_size, max(fleets)
+    n = torch.tensor(fleets)[torch.randint(len(fleets), (b,), generator=g)]
+    live = torch.arange(n_max)[None] < n[:, None]
+
+    def normal(*shape):
+        return torch.randn(*shape, generator=g)
+
+    batch = FleetBatch(obs=normal(b, n_max, od), act=normal(b, n_max, 2).tanh(), rew=normal(b, n_max),
+                       next_obs=normal(b, n_max, od), pos=normal(b, n_max, 2), next_pos=normal(b, n_max, 2),
+                       live=live, next_live=live, disc=torch.full((b,), gc.gamma))
+    return SharedMADDPG(od, 2, gc.learner, seed=0), batch
+
+
+def update_gflop(agent, batch) -> float:
+    """Matmul GFLOP of one update (forward and backward), counted by torch's FlopCounterMode."""
     from torch.utils.flop_counter import FlopCounterMode
 
-    agent, batch = agent_and_batch(params, config)
     with FlopCounterMode(display=False) as counter:
         agent.update(batch)
     return counter.get_total_flops() / 1e9
 
 
-def update_breakdown(params, config: str, updates: int = 5) -> dict[str, tuple[float, float]]:
+def update_breakdown(agent, batch, updates: int = 5) -> dict[str, tuple[float, float]]:
     """Where one update's time goes: {kind: (ms per update, matmul GFLOPS or nan)}, timing every aten call
     (``TorchDispatchMode``). Matmuls are split into wide ones (every dimension ≥ 16) and skinny ones (an output
     width or inner size below 16: the last layers and their gradients). An inner size of 1 is a broadcast
@@ -153,7 +176,6 @@ def update_breakdown(params, config: str, updates: int = 5) -> dict[str, tuple[f
 
     from torch.utils._python_dispatch import TorchDispatchMode
 
-    agent, batch = agent_and_batch(params, config)
     agent.update(batch)
     seconds, flops = defaultdict(float), defaultdict(float)
 
@@ -332,14 +354,32 @@ def machine_section(params) -> dict[str, float]:
     print(f"matmul throughput {gflops:.1f} GFLOPS; per-run times below scale with it across machines")
     floors = {}
     for config in CONFIGS:
-        gflop = update_gflop(params, config)
+        gflop = update_gflop(*agent_and_batch(params, config))
         floors[config] = gflop / gflops
         print(f"{config}: one update of 9 agents is {gflop:.3f} GFLOP of matmuls: {floors[config] * 1e3:.1f} ms "
               f"at that throughput (the floor for an update)")
-        parts = update_breakdown(params, config)
+        parts = update_breakdown(*agent_and_batch(params, config))
         print(f"{config}: where an update's time goes (every aten call timed, so the total runs slower): " + "; ".join(
             f"{k} {ms:.2f} ms" + (f" at {gf:.1f} GFLOPS" if gf == gf else "") for k, (ms, gf) in sorted(parts.items())))
+    gflop = update_gflop(*general_agent_and_batch(params))
+    floors["general"] = gflop / gflops
+    print(f"general policy (shared actor, pooled critic, batch {params.general.batch_size} fleets): one update is "
+          f"{gflop:.3f} GFLOP of matmuls: {floors['general'] * 1e3:.1f} ms at that throughput")
     return floors
+
+
+def general_update_section(params, floors: dict[str, float]) -> None:
+    print("== 6. one update of the general policy (shared actor, pooled critic), at its training shapes ==")
+    agent, batch = general_agent_and_batch(params)
+    agent.update(batch)
+    per_update = float(np.median([best_of(lambda: [agent.update(batch) for _ in range(5)]) / 5 for _ in range(3)]))
+    n_max, live = batch.live.shape[1], batch.live.float().mean().item()
+    print(f"{per_update * 1e3:.1f} ms per update ({batch.live.shape[0]} fleets padded to {n_max} buoys, {live:.0%} of "
+          f"the slots live); the matmul floor {floors['general'] * 1e3:.1f} ms is {floors['general'] / per_update:.0%}"
+          f" of it ({per_update / floors['general']:.2f}x the floor)")
+    parts = update_breakdown(*general_agent_and_batch(params))
+    print("where it goes (every aten call timed, so the total runs slower): " + "; ".join(
+        f"{k} {ms:.2f} ms" + (f" at {gf:.1f} GFLOPS" if gf == gf else "") for k, (ms, gf) in sorted(parts.items())))
 
 
 def training_section(params, square, floors: dict[str, float], episodes: int) -> None:
@@ -429,14 +469,14 @@ def full_run(params, square) -> None:
           f"{summary['updates']} updates)")
 
 
-SECTIONS = (0, 1, 2, 3, 4, 5)
+SECTIONS = (0, 1, 2, 3, 4, 5, 6)
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--episodes", type=int, default=1000, help="episodes of the timed training runs")
     parser.add_argument("--only", type=int, nargs="+", choices=SECTIONS, default=SECTIONS,
-                        help="the sections to run (default: all; 1 needs 0's floors and runs it too)")
+                        help="the sections to run (default: all; 1 and 6 need 0's floors and run it too)")
     parser.add_argument("--full", action="store_true", help="also train the full 10,000-episode CR run")
     parser.add_argument("--allocator-probe", choices=("default", "held"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -447,7 +487,7 @@ def main(argv=None) -> int:
     params = load_params("params.yaml")
     square = make_region("square", params.regions["square"], params.world.region_area)
     only = set(args.only)
-    floors = machine_section(params) if only & {0, 1} else {}
+    floors = machine_section(params) if only & {0, 1, 6} else {}
     if 1 in only:
         training_section(params, square, floors, args.episodes)
     if 2 in only:
@@ -458,6 +498,8 @@ def main(argv=None) -> int:
         allocator_section(args.episodes)
     if 5 in only:
         benchmarl_section()
+    if 6 in only:
+        general_update_section(params, floors)
     if args.full:
         full_run(params, square)
     return 0
