@@ -128,3 +128,31 @@ def test_the_local_observation_passes_the_api_and_seed_tests():
     while env.agents:
         assert all(space.contains(o) for o in obs.values())
         obs, *_ = env.step({a: np.array([1.0, 1.0], np.float32) for a in env.agents})
+
+
+def test_starts_losses_and_a_current_pass_the_api_and_seed_tests():
+    """The events of `replicate evaluate --policy`: scattered starts, buoys lost half-way (they terminate and
+    leave ``agents``, the others no longer hear them), a drift."""
+    def make():
+        return CoverageParallelEnv("bedok", observation="local", shore="wall", episode_length=20, start="random",
+                                   lose=3, current=(0.6, 0.0))
+
+    parallel_api_test(make(), num_cycles=40)
+    parallel_seed_test(make)
+    env = make()
+    env.reset(seed=3)
+    for t in range(20):
+        obs, rewards, terms, truncs, infos = env.step({a: env.action_space(a).sample() for a in env.agents})
+        if t == 9:
+            assert sum(terms.values()) == 3 and len(env.agents) == 6 and len(obs) == 9
+            assert env.core.alive.sum() == 6
+    assert env.agents == [] and len(obs) == 6 and all(truncs.values())
+    again = make()
+    again.reset(seed=3)
+    for _ in range(10):
+        again.step({a: np.zeros(2) for a in again.agents})
+    assert (again.core.alive == env.core.alive).all()  # the losses come from the reset's seed
+    with pytest.raises(ValueError, match="lose must be between 0 and n_agents - 1"):
+        CoverageParallelEnv("square", lose=9)
+    with pytest.raises(ValueError, match="start must be one of"):
+        CoverageParallelEnv("square", start="middle")

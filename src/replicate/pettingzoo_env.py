@@ -2,7 +2,7 @@
 
 One environment (E = 1) of ``CoverageEnv``: any region, any N ≥ 1, any coverage radius, the SW or CR reward.
 Agents are ``buoy_0 … buoy_{N−1}``; every episode is truncated after ``episode_length`` steps (no terminal
-states, as in MPE).
+states, as in MPE, but for buoys lost with ``lose``, which terminate).
 
     >>> env = CoverageParallelEnv("square", reward="cr")
     >>> obs, infos = env.reset(seed=0)
@@ -19,7 +19,8 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from .config import Params, SensorsConfig, load_params, packaged, region_world
-from .env import CoverageEnv
+from .currents import Current
+from .env import STARTS, CoverageEnv
 from .regions import Region, make_region
 
 
@@ -37,7 +38,10 @@ class CoverageParallelEnv(ParallelEnv):
     configuration's reward options and world bounds from params.yaml: its observation, geofence, reward scale,
     union credit and union weight (``config="tuned"`` is the CR reward that learns, see ``docs/TUNING.md``); the
     keyword arguments override them one by one. ``n_agents``, ``radius``, ``episode_length`` override the world;
-    ``reward`` is ``"sw"``, ``"cr"`` or ``None``; ``shore="wall"`` keeps every buoy in the water. Infos carry the
+    ``reward`` is ``"sw"``, ``"cr"`` or ``None``; ``shore="wall"`` keeps every buoy in the water. The events of
+    ``replicate evaluate --policy``: ``start`` (``"corner"``, ``"opposite"`` or ``"random"``), ``lose`` buoys lost
+    after half the episode (drawn from the reset's seed; they terminate and leave ``agents``), and a uniform
+    ``current`` (vx, vy) in simulation m/s. Infos carry the
     coverage fraction (fast path) from the reset on, so wrappers that build their specs from ``reset()`` see it.
     Observations and the ``state()`` are bounded: no buoy can get further than T steps at top speed from the
     region (or past the geofence).
@@ -61,6 +65,9 @@ class CoverageParallelEnv(ParallelEnv):
         union_weight: float | None | Unset = UNSET,
         episode_length: int | None = None,
         shore: str | None = None,
+        start: str = "corner",
+        lose: int = 0,
+        current: tuple[float, float] | None = None,
         params: Params | None = None,
     ):
         params = params or load_params(packaged("params.yaml"))
@@ -89,6 +96,14 @@ class CoverageParallelEnv(ParallelEnv):
             sensors_config=pick(sensors_config, "sensors", SensorsConfig()), geofence=fence,
             wall=pick(shore, "shore", "fence") == "wall", union_credit=pick(union_credit, "union_credit", "shared"),
         )
+        if start not in STARTS:
+            raise ValueError(f"start must be one of {STARTS}, got {start!r}")
+        if not 0 <= int(lose) < world.n_agents:
+            raise ValueError(f"lose must be between 0 and n_agents - 1 ({world.n_agents - 1}), got {lose}")
+        self.start, self.lose = start, int(lose)
+        if current is not None:
+            self.core.set_current(Current.uniform(np.asarray([current], dtype=float)))
+        self._loss_rng = np.random.default_rng()
         self.possible_agents = [f"buoy_{i}" for i in range(world.n_agents)]
         self.agents: list[str] = []
         self.render_mode = None
@@ -114,7 +129,8 @@ class CoverageParallelEnv(ParallelEnv):
     def reset(self, seed: int | None = None, options: dict | None = None):
         if seed is not None:
             self.core.seed(seed)
-        obs = self.core.reset()
+            self._loss_rng = np.random.default_rng([seed, 1])  # the losses of ``evaluate.rollout``
+        obs = self.core.reset(start=self.start)
         self.agents = list(self.possible_agents)
         coverage = float(self.core.coverage_fraction()[0])
         return self._obs(obs), {a: {"coverage": coverage} for a in self.agents}
@@ -127,16 +143,22 @@ class CoverageParallelEnv(ParallelEnv):
             if a in actions:
                 action[0, i] = np.asarray(actions[a], dtype=float)
         result = self.core.step(action)
-        obs = self._obs(result.obs)
-        rewards = {a: float(result.reward[0, i]) * self.reward_scale for i, a in enumerate(self.possible_agents)}
+        rewards = {a: float(result.reward[0, i]) * self.reward_scale for i, a in enumerate(self.possible_agents)
+                   if a in self.agents}
         truncated = bool(result.done)
         union = result.union_area[0]  # measured by the CR reward; NaN otherwise
         coverage = float(union / self.core.region.area if np.isfinite(union) else self.core.coverage_fraction()[0])
         terminations = {a: False for a in self.agents}
+        if self.lose and self.core.t == self.core.world.episode_length // 2:  # the loss, before the next step
+            self.core.lose(self.lose, self._loss_rng)
+            result = dataclasses.replace(result, obs=self.core.observe())  # the lost are no longer heard
+            lost = [a for i, a in enumerate(self.possible_agents) if not self.core.alive[0, i]]
+            terminations.update({a: True for a in lost if a in self.agents})
+            coverage = float(self.core.coverage_fraction()[0])  # of the buoys still in service
+        obs = {a: o for a, o in self._obs(result.obs).items() if a in self.agents}
         truncations = {a: truncated for a in self.agents}
         infos = {a: {"coverage": coverage} for a in self.agents}
-        if truncated:
-            self.agents = []
+        self.agents = [] if truncated else [a for a in self.agents if not terminations[a]]
         return obs, rewards, terminations, truncations, infos
 
     def state(self) -> np.ndarray:
