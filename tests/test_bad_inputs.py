@@ -111,6 +111,8 @@ def test_outline_files_with_nan_vertices_or_an_unknown_crs_are_named(capsys, tmp
     (["cover", "--region", "lake.geojson", "--method", "cr", "--finetune", "64"],
      "--policy and --finetune go with --method general"),
     (["cover", "--region", "lake.geojson", "--policy", "actor.pt"], "export it first"),
+    (["cover", "--region", "lake.geojson", "--finetune", "5"], "--finetune must be 0 (zero-shot) or at least"),
+    (["cover", "--region", "lake.geojson", "--config", "paper"], "--config goes with --method cr"),
 ])
 def test_general_policy_inputs_are_refused_by_name(capsys, tmp_path, monkeypatch, argv, message):
     monkeypatch.chdir(tmp_path)

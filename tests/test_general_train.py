@@ -148,6 +148,22 @@ def test_a_general_policy_runs_zero_shot_on_a_lake_the_repo_does_not_ship(two_ru
 
 
 @pytest.mark.slow
+def test_an_episode_for_the_figures_shows_the_loss_from_its_step(two_runs, params, regions, tmp_path):
+    """``evaluate.general_episode``: positions [T + 1, N, 2] and the buoys in service [T + 1, N], the lost ones out
+    of service from the frame of the step before which they were lost."""
+    from replicate.evaluate import general_episode
+    from replicate.export import export_general
+
+    out, _ = two_runs
+    export_general(out / "run0" / "actor.pt", tmp_path / "general.pt")
+    trace, alive = general_episode(tmp_path / "general.pt", regions["square"], params, 9, "corner", lose=3)
+    t = params.general.episode_length
+    assert trace.shape == (t + 1, 9, 2) and alive.shape == (t + 1, 9)
+    assert alive[: t // 2].all() and (alive[t // 2:].sum(axis=1) == 6).all()
+    assert (trace[t // 2:, ~alive[-1]] == trace[t // 2, ~alive[-1]]).all()  # the lost stay where they were lost
+
+
+@pytest.mark.slow
 def test_cover_uses_the_general_policy_zero_shot_and_fine_tuned(two_runs, tmp_path):
     """`replicate cover --policy FILE`: the general policy on a lake the repo does not ship, zero-shot with its
     baselines under the wall; then `--finetune`, which keeps the starting weights when training (here too short

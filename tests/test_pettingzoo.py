@@ -154,5 +154,13 @@ def test_starts_losses_and_a_current_pass_the_api_and_seed_tests():
     assert (again.core.alive == env.core.alive).all()  # the losses come from the reset's seed
     with pytest.raises(ValueError, match="lose must be between 0 and n_agents - 1"):
         CoverageParallelEnv("square", lose=9)
+    with pytest.raises(ValueError, match="lose needs an episode of at least 2 steps"):
+        CoverageParallelEnv("square", lose=1, episode_length=1)
+    drifting = CoverageParallelEnv("square", current=(2.0, 0.0), episode_length=30)  # no wall, no fence
+    obs, _ = drifting.reset(seed=0)
+    while drifting.agents:
+        obs, *_ = drifting.step({a: np.array([1.0, 0.0]) for a in drifting.agents})
+        assert drifting.state_space.contains(drifting.state())  # the drift counts in the bounds
+        assert all(drifting.observation_space(a).contains(o) for a, o in obs.items())
     with pytest.raises(ValueError, match="start must be one of"):
         CoverageParallelEnv("square", start="middle")

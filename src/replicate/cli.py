@@ -322,8 +322,12 @@ def cmd_cover(args: argparse.Namespace) -> int:
         if args.episodes is not None:
             raise ConfigError("--episodes goes with --method cr; the general policy is fine-tuned with --finetune "
                               "EPISODES")
-        if args.finetune < 0:
-            raise ConfigError(f"--finetune must be 0 (zero-shot) or a number of episodes, got {args.finetune}")
+        if args.config is not None:
+            raise ConfigError("--config goes with --method cr; the general policy has its own training values")
+        n_envs = params.general.n_envs
+        if args.finetune < 0 or 0 < args.finetune < n_envs:
+            raise ConfigError(f"--finetune must be 0 (zero-shot) or at least general.n_envs ({n_envs}) episodes, "
+                              f"got {args.finetune}")
         args.policy = general_policy_file(args.policy)
         from .evaluate import general_policy
 
@@ -332,6 +336,7 @@ def cmd_cover(args: argparse.Namespace) -> int:
         if args.policy is not None or args.finetune:
             raise ConfigError("--policy and --finetune go with --method general")
         args.episodes = 2000 if args.episodes is None else args.episodes
+        args.config = "tuned" if args.config is None else args.config
         if args.episodes < 1:
             raise ConfigError(f"--episodes must be at least 1, got {args.episodes}")
     if args.radius_m is not None:
@@ -614,12 +619,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="--method general: a general policy file (default: the one installed with the package, "
                         "policies/general.pt)")
     c.add_argument("--finetune", type=int, default=0, metavar="EPISODES",
-                   help="--method general: train the policy on this lake for EPISODES first; it keeps the starting "
-                        "weights unless training beats them on validation starts")
+                   help="--method general: train the policy on this lake for EPISODES first (rounded down to "
+                        "general.n_envs); it keeps the starting weights unless training beats them on validation "
+                        "starts")
     c.add_argument("--episodes", type=int, default=None,
                    help="--method cr: training episodes (default 2000, rounded to the config's n_envs)")
     c.add_argument("--seed", type=int, default=0, help="training seed (--finetune, --method cr), 0 to 2**32 - 1")
-    c.add_argument("--config", default="tuned", help="--method cr: configuration in params.yaml")
+    c.add_argument("--config", default=None, help="--method cr: configuration in params.yaml (default: tuned)")
     c.add_argument("--n-agents", type=int, default=None, help="number of buoys, 1 to 200 (default: world.n_agents)")
     c.add_argument("--radius-m", type=float, default=None,
                    help="real scale: coverage radius in metres (default: the paper's 9 m² scale)")

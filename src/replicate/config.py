@@ -22,8 +22,9 @@ DEFAULT_PARAMS = Path("params.yaml")
 
 
 def packaged(name: str) -> Path:
-    """A file installed with the package (``replicate/defaults/``): the repository's ``params.yaml`` and the
-    bundled Bedok outline, so that every command works from any folder after ``pip install``."""
+    """A file installed with the package (``replicate/defaults/``): the repository's ``params.yaml``, the
+    bundled Bedok outline and the general policy (``policies/general.pt``), so that every command works from any
+    folder after ``pip install``."""
     from importlib.resources import files
 
     return Path(str(files("replicate") / "defaults" / name))

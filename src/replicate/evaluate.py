@@ -242,8 +242,8 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     left in service (``best_layout``: no physics, the limit). → coverage (mean, lo, hi, n over episodes), the
     baselines', ``ratio_to_lloyd``, ``ratio_to_best`` and ``max_outside_m``: the largest distance of any buoy
     outside the water at any step of any episode. ``seeds`` ({label: policy file}, e.g. every trained seed of
-    the general policy) are run on the same episodes, under ``"seeds"`` with the same fields; the baselines run
-    once for all."""
+    the general policy) are run on the same episodes, each under ``"seeds"`` with its ``coverage`` and
+    ``max_outside_m``; the baselines run once for all."""
     import dataclasses
 
     from .best_layout import best_coverage
@@ -325,6 +325,7 @@ def general_episode(policy_path: str | Path, region: Region, params: Params, n_a
     for t in range(steps):
         if lose and t == steps // 2:
             env.lose(lose, loss_rng)
+            alive[-1] = env.alive[0].copy()  # lost where they stand: this frame already shows it
         env.step(act(env))
         trace.append(env.pos[0].copy())
         alive.append(np.ones(n_agents, bool) if env.alive is None else env.alive[0].copy())

@@ -32,7 +32,7 @@ import numpy as np
 import shapely
 from numba import njit
 from shapely.geometry import Polygon
-from tqdm.auto import tqdm
+from tqdm import tqdm  # a terminal's bar: in a notebook's worker processes the widget bar cannot reach the page
 
 
 def polygon_offsets(radius: float, edges: int) -> np.ndarray:

@@ -100,6 +100,8 @@ class CoverageParallelEnv(ParallelEnv):
             raise ValueError(f"start must be one of {STARTS}, got {start!r}")
         if not 0 <= int(lose) < world.n_agents:
             raise ValueError(f"lose must be between 0 and n_agents - 1 ({world.n_agents - 1}), got {lose}")
+        if lose and world.episode_length < 2:
+            raise ValueError("lose needs an episode of at least 2 steps: the buoys are lost after half of it")
         self.start, self.lose = start, int(lose)
         if current is not None:
             self.core.set_current(Current.uniform(np.asarray([current], dtype=float)))
@@ -178,13 +180,14 @@ def top_speed(core: CoverageEnv) -> float:
 
 
 def reachable_bounds(core: CoverageEnv) -> tuple[np.ndarray, np.ndarray]:
-    """Per-buoy bounds of [x, y, vx, vy]: a velocity component never exceeds ``top_speed``, v_max, so a buoy
-    released in the region is at most T·v_max·dt outside its box (or at the geofence; never outside the water
-    behind a wall)."""
+    """Per-buoy bounds of [x, y, vx, vy]: a velocity component never exceeds ``top_speed``, v_max, and the water
+    moves a buoy at most at the current's top speed, so a buoy released in the region is at most T·(v_max +
+    current)·dt outside its box (or at the geofence; never outside the water behind a wall)."""
     w = core.world
     v_max = top_speed(core)
+    drift = 0.0 if core.current is None else core.current.max_speed()
     minx, miny, maxx, maxy = core.region.polygon.bounds
-    reach = w.episode_length * v_max * w.dt if core.fence is None and not core.wall else 0.0
+    reach = w.episode_length * (v_max + drift) * w.dt if core.fence is None and not core.wall else 0.0
     box = (np.array([minx, miny]), np.array([maxx, maxy]))
     lo, hi = core.fence if core.fence is not None and not core.wall else box
     return (np.concatenate([lo - reach, [-v_max, -v_max]]) - 1e-6,

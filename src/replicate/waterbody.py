@@ -28,7 +28,7 @@ import numpy as np
 from shapely import affinity
 
 from . import artifacts, plots
-from .config import Params, run_config
+from .config import ConfigError, Params, run_config
 from .env import start_patch
 from .evaluate import evaluate_baseline, evaluate_run
 from .osm import OSMUnavailable, outline_from_osm_xml, query_osm
@@ -134,11 +134,17 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
     module, meta = general_policy(policy)
     steps = horizon(params.general, region, params.world.region_area)
     if finetune:
-        gc = params.general  # the policy's own sensors, this lake's horizon
-        gc = dataclasses.replace(gc, episodes=max(gc.n_envs, finetune - finetune % gc.n_envs), episode_length=steps,
-                                 sensors=SensorsConfig(**meta["sensor_config"]))
-        trainer = GeneralTrainer(params, seed, out / "finetune", progress, gc, worlds=[(region, n)],
-                                 actor=dict(module.state_dict()))
+        gc = params.general  # the policy's own sensors and width, this lake's horizon
+        weights = dict(module.state_dict())
+        try:
+            learner = dataclasses.replace(gc.learner, hidden=int(weights["net.0.weight"].shape[0]))
+            gc = dataclasses.replace(gc, episodes=finetune - finetune % gc.n_envs, episode_length=steps,
+                                     sensors=SensorsConfig(**meta["sensor_config"]), learner=learner)
+            trainer = GeneralTrainer(params, seed, out / "finetune", progress, gc, worlds=[(region, n)],
+                                     actor=weights)
+        except (KeyError, RuntimeError) as exc:  # weights of another network than the shared actor
+            raise ConfigError(f"{policy}: its network is not the general policy's actor ({type(exc).__name__}); "
+                              "give a policy exported from a general run (`replicate export RUN`)") from None
         trained = trainer.run()
         policy = out / "policy.pt"
         export_general(out / "finetune" / "actor.pt", policy, params.world.sensitivity, meta.get("baseline_gains"))

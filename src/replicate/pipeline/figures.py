@@ -130,36 +130,36 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
 
 
 def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[Path]:
-    """The general policy, one evaluation episode each: on three held-out lakes from scattered starts
-    (``fig_general_lakes.png``), and as GIFs through a loss of a share of the fleet at T/2
+    """The general policy, one evaluation episode each: on three held-out lakes from the suite's last start
+    (scattered by default; ``fig_general_lakes.png``), and as GIFs through a loss of a share of the fleet at T/2
     (``anim_general_lose.gif``) and through a drift (``anim_general_current.gif``), on Bedok with the paper's
     fleet."""
     from ..animate import animate_trace
     from ..evaluate import general_episode
-    from .general import at_density, suite_lakes
+    from .general import at_density, suite_lakes, suite_lose
 
     su, c = params.general.suite, params.coverage
-    suite = json.loads(suite_path.read_text())["cells"]
+    suite = {(x["region"], x["n_agents"], x["start"], x["event"]): x
+             for x in json.loads(suite_path.read_text())["cells"]}
     lakes = suite_lakes(params)
-    n = max(su.lake_fleets)
-    held_out = sorted(name for name in lakes if name not in ("square", "rectangle", "bedok"))[:3]
+    n, start = max(su.lake_fleets), su.starts[-1]
+    held_out = sorted(name for name in lakes if name not in params.regions)[:3]
     panels = []
     for name in held_out:
         region = at_density(*lakes[name], n)
-        trace, _ = general_episode(policy, region, params, n, "random")
-        cell = next(x for x in suite if (x["region"], x["n_agents"], x["start"], x["event"]) == (name, n, "random",
-                                                                                                 "none"))
+        trace, _ = general_episode(policy, region, params, n, start)
+        cell = suite[(name, n, start, "none")]
         cover = coverage_fraction_exact(region.polygon, trace[-1][None], c.radius, c.edges)[0]
-        rival = {k: cell["baselines"][k]["coverage"]["mean"] for k in ("lloyd_tuned", "best_layout")}
+        lloyd = "lloyd_tuned" if "lloyd_tuned" in cell["baselines"] else "lloyd"  # a policy without tuned gains
+        rival = {k: cell["baselines"][k]["coverage"]["mean"] for k in (lloyd, "best_layout")}
         panels.append({"region": region.polygon, "trace": trace, "title": (
             f"{name}, N = {n}: coverage {cover:.2f} in this episode\nmean of {cell['coverage']['n']}: "
-            f"{cell['coverage']['mean']:.3f}; lloyd_tuned {rival['lloyd_tuned']:.3f}, "
-            f"best layout {rival['best_layout']:.3f}")})
+            f"{cell['coverage']['mean']:.3f}; {lloyd} {rival[lloyd]:.3f}, best layout {rival['best_layout']:.3f}")})
     written = [plots.general_lakes(panels, c.radius, c.edges, fig / "fig_general_lakes.png",
-                                   "The general policy on held-out lakes it never trained on (scattered starts, "
+                                   f"The general policy on held-out lakes it never trained on ({start} starts; "
                                    "crosses: where the buoys started)")]
     bedok, buoys = make_region("bedok", params.regions["bedok"], params.world.region_area), params.world.n_agents
-    lose = max(1, int(buoys * su.lose_fraction))
+    lose = suite_lose(su, buoys)
     trace, alive = general_episode(policy, bedok, params, buoys, "corner", lose=lose)
     written.append(animate_trace(bedok.polygon, trace, alive, c.radius, c.edges,
                                  f"general policy, Bedok, {lose} of {buoys} lost at T/2",

@@ -66,8 +66,11 @@ def _train_seed(job: dict) -> dict:
 
 def train_general(params_path: str, out_dir: str, gains_path: str | None, workers: int,
                   executor: str = "local") -> dict:
-    """Train every seed of ``general.seeds`` (``workers`` processes, or Ray tasks), export the best-validated
-    seed's actor to ``OUT/general.pt`` with the baselines' gains of ``gains_path``, write ``OUT/summary.json``."""
+    """Train every seed of ``general.seeds`` (``workers`` processes, or Ray tasks), export every seed's actor to
+    ``OUT/runs/general-sSEED/policy.pt`` with the baselines' gains of ``gains_path``, copy the best-validated
+    seed's to ``OUT/general.pt``, write ``OUT/summary.json`` (the same bytes when nothing was trained again, so
+    the suite downstream does not rerun). → the summary, with the stage's wall time and which seeds were kept
+    from an earlier run."""
     params = load_params(params_path)
     out = Path(out_dir)
     jobs = [{"params": params_path, "seed": s, "out": str(out / "runs" / f"general-s{s}")}
@@ -82,13 +85,13 @@ def train_general(params_path: str, out_dir: str, gains_path: str | None, worker
         export_general(run_dir / "actor.pt", run_dir / SEED_POLICY, params.world.sensitivity, gains)
     kept = out / "runs" / f"general-s{best['seed']}" / SEED_POLICY
     artifacts.atomic_write_bytes(out / KEPT_POLICY, kept.read_bytes())
-    summary = {"kept_seed": best["seed"], "wall_seconds": round(wall, 1), "runs": [
+    summary = {"kept_seed": best["seed"], "runs": [
         {k: r.get(k) for k in ("seed", "selected_episode", "selected_validation_coverage", "cpu_seconds",
-                               "wall_seconds")} | {"skipped": r.get("skipped", False),
-                                                   "policy": f"runs/general-s{r['seed']}/{SEED_POLICY}"}
+                               "wall_seconds")} | {"policy": f"runs/general-s{r['seed']}/{SEED_POLICY}"}
         for r in runs]}
     artifacts.write_json(out / "summary.json", summary)
-    return summary
+    return summary | {"wall_seconds": round(wall, 1), "runs": [
+        run | {"skipped": r.get("skipped", False)} for run, r in zip(summary["runs"], runs, strict=True)]}
 
 
 # ---- the evaluation suite: every lake × fleet × start × event ----------------------------------------------
@@ -107,12 +110,13 @@ class SuiteCell:
 
 
 def suite_lakes(params) -> dict[str, tuple[Region, int]]:
-    """The suite's lakes → (region, the fleet it is drawn for): the square, the rectangle and Bedok for the paper's
-    9 buoys, then ``general.suite.held_out`` lakes of ``lakes.held_out`` for their own N."""
+    """The suite's lakes → (region, the fleet it is drawn for): every region of ``regions`` (the square, the
+    rectangle and Bedok) for the paper's 9 buoys, then ``general.suite.held_out`` lakes of ``lakes.held_out`` for
+    their own N."""
     from ..worlds import coverage_area
 
     named = {name: (make_region(name, params.regions[name], params.world.region_area), params.world.n_agents)
-             for name in ("square", "rectangle", "bedok")}
+             for name in params.regions}
     lakes = {(r := lake_region(spec, coverage_area(params))).name: (r, spec.n_agents)
              for spec in held_out(params.general.suite.held_out)}
     return named | lakes
@@ -126,12 +130,17 @@ def at_density(region: Region, drawn_for: int, n_agents: int) -> Region:
 
 
 def suite_cells(params) -> list[SuiteCell]:
-    su, named = params.general.suite, ("square", "rectangle", "bedok")
+    su = params.general.suite
     cells = []
     for name in suite_lakes(params):
-        fleets, events = (su.named_fleets, EVENTS) if name in named else (su.lake_fleets, ("none",))
+        fleets, events = (su.named_fleets, EVENTS) if name in params.regions else (su.lake_fleets, ("none",))
         cells += [SuiteCell(name, n, start, event) for n in fleets for start in su.starts for event in events]
     return cells
+
+
+def suite_lose(suite, n_agents: int) -> int:
+    """Buoys lost at T/2 in the suite's "lose" event: ``lose_fraction`` of the fleet, at least one."""
+    return max(1, int(n_agents * suite.lose_fraction))
 
 
 def _evaluate_lake(job: dict) -> list[dict]:
@@ -148,7 +157,7 @@ def _evaluate_lake(job: dict) -> list[dict]:
     kept, *others = job["policies"].items()  # the kept seed's, then the others'
     out = []
     for cell in map(lambda c: SuiteCell(**c), job["cells"]):
-        lose = max(1, int(cell.n_agents * su.lose_fraction)) if cell.event == "lose" else 0
+        lose = suite_lose(su, cell.n_agents) if cell.event == "lose" else 0
         current = (su.current, 0.0) if cell.event == "current" else None
         result = evaluate_policy(kept[1], region, params, cell.n_agents, cell.start, lose, current,
                                  seeds=dict(others))

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import artifacts, stats
-from ..config import Cell, ReportConfig
+from ..config import Cell, ReportConfig, run_config
 
 REPRODUCED, PARTLY, NOT = "reproduced", "partly", "not reproduced"
 
@@ -278,7 +278,6 @@ def budgets(rules_params, tuning: dict) -> list[str]:
     return rows
 
 
-NAMED = ("square", "rectangle", "bedok")
 YARDSTICKS = ("naive_tuned", "lloyd_tuned", "geodesic_lloyd", "best_layout")
 
 
@@ -327,36 +326,43 @@ def general_verdicts(cells: list[dict], t) -> list[tuple[str, str, str]]:
             if which]
 
 
-def per_region_cr(summary: dict, c: dict, n_agents: int, lose: int) -> str:
-    """The per-region `tuned` CR-MARL of the same region, fleet, start and event, from its robustness scenarios
-    (its own physics, not the wall), as mean [CI] over seeds; "—" where it has none."""
-    runs = summary.get("runs", {}).get(f"tuned/cr/{c['region']}", {}).get("robustness", {})
-    scenario = {("none", "corner"): "corner", ("none", "random"): "random",
-                ("lose", "corner"): f"lose_{c.get('lose')}"}.get((c["event"], c["start"]))
-    if c["n_agents"] != n_agents or scenario not in runs or (c["event"] == "lose" and c.get("lose") != lose):
+def per_region_cr(params, summary: dict, c: dict) -> str:
+    """The per-region `tuned` CR-MARL of a suite cell's region, fleet, start and event, from the robustness
+    scenario (``evaluate.robustness``) with the same start, the same buoys lost and the region's T (its own
+    physics, not the wall), as mean [CI] over seeds, its T written out where the suite's differs; "—" where there
+    is none."""
+    if c["region"] not in params.regions or c["n_agents"] != params.world.n_agents or c["event"] == "current":
         return "—"
-    return fmt(runs[scenario]["coverage"])
+    runs = summary.get("runs", {}).get(Cell("tuned", "cr", c["region"]).key, {}).get("robustness", {})
+    lose = c.get("lose", 0) if c["event"] == "lose" else 0
+    same = [name for name, s in params.evaluate.robustness.items()
+            if (s.start, s.lose, s.horizon) == (c["start"], lose, 1.0) and name in runs]
+    if not same:
+        return "—"
+    steps = run_config(params, "tuned", "cr", c["region"]).world.episode_length
+    text = fmt(runs[same[0]]["coverage"])
+    return text if steps == c.get("steps") else f"{text} (T = {steps})"
 
 
-def general_rows(cells: list[dict], summary: dict | None = None, n_agents: int = 9, lose: int = 3) -> list[str]:
+def general_rows(params, cells: list[dict], summary: dict) -> list[str]:
     """Markdown rows: every cell of the named regions, then the held-out lakes pooled per fleet and start (mean
     over lakes, and the worst lake's ratio to lloyd_tuned). The general policy's column is the kept seed's (its
     interval over episodes); the next gives the range over every seed (over seeds of the mean over lakes); then
-    the per-region `tuned` CR-MARL where ``summary`` has it (``n_agents`` buoys, ``lose`` lost)."""
+    the per-region `tuned` CR-MARL where ``summary`` has it (``per_region_cr``)."""
     def row(label, n, start, event, general, seeds, cr, rivals, ratio):
         return (f"| {label} | {n} | {start} | {event} | {general} | {min(seeds):.3f}-{max(seeds):.3f} | {cr} | "
                 + " | ".join(f"{v:.3f}" for v in rivals) + f" | {ratio} |")
 
     rows = []
     for c in cells:
-        if c["region"] in NAMED:
+        if c["region"] in params.regions:
             rivals = [c["baselines"][k]["coverage"]["mean"] for k in YARDSTICKS]
             rows.append(row(c["region"], c["n_agents"], c["start"], c["event"], fmt(c["coverage"]),
-                            list(seed_coverages(c).values()), per_region_cr(summary or {}, c, n_agents, lose),
+                            list(seed_coverages(c).values()), per_region_cr(params, summary, c),
                             rivals, f"{c['coverage']['mean'] / rivals[1]:.3f}"))
     lakes: dict[tuple, list[dict]] = {}
     for c in cells:
-        if c["region"] not in NAMED:
+        if c["region"] not in params.regions:
             lakes.setdefault((c["n_agents"], c["start"], c["event"]), []).append(c)
     for (n, start, event), group in sorted(lakes.items()):
         general = [c["coverage"]["mean"] for c in group]
@@ -394,8 +400,7 @@ def general_section(params, general: dict, summary: dict | None = None) -> list[
              *[f"| {bar} | {n} | **{v}** |" for bar, n, v in general_verdicts(cells, t)], "",
              "| lake | N | start | event | general policy | every seed | tuned CR | naive_tuned | lloyd_tuned | "
              "geodesic Lloyd | best layout | general / lloyd_tuned |", "|" + "---|" * 12,
-             *general_rows(cells, summary, params.world.n_agents,
-                           max(1, int(params.world.n_agents * params.general.suite.lose_fraction))), ""]
+             *general_rows(params, cells, summary or {}), ""]
     return lines
 
 
