@@ -167,7 +167,8 @@ def test_the_general_policys_bars_are_counted_per_cell(params):
 
     def cell(region, event, general, lloyd, best=0.78, naive=0.7, outside=0.0):
         rivals = {"naive_tuned": naive, "lloyd_tuned": lloyd, "geodesic_lloyd": lloyd, "best_layout": best}
-        return {"region": region, "n_agents": 9, "start": "corner", "event": event, "max_outside_m": outside, "steps": 50,
+        return {"region": region, "n_agents": 9, "start": "corner", "event": event, "max_outside_m": outside,
+                "steps": 50,
                 "coverage": {"mean": general, "lo": general - 0.01, "hi": general + 0.01, "n": 20},
                 "baselines": {k: {"coverage": {"mean": v}} for k, v in rivals.items()}}
 

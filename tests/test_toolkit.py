@@ -129,11 +129,13 @@ def test_animation_has_one_frame_per_step(small_run, params, regions, tmp_path):
 
 @pytest.mark.slow
 def test_cover_a_lake_the_repo_does_not_ship(tmp_path):
-    """`replicate cover --region FILE` offline end to end, at real scale with 5 buoys of 150 m."""
+    """`replicate cover --method cr --region FILE` (CR-MARL trained on the lake) offline end to end, at real scale
+    with 5 buoys of 150 m."""
     lake = Polygon([(6.56, 46.50), (6.575, 46.502), (6.58, 46.51), (6.565, 46.512), (6.555, 46.505)])
     gpd.GeoDataFrame({"name": ["test lake"]}, geometry=[lake], crs="EPSG:4326").to_file(tmp_path / "lake.geojson")
-    proc = cli(*SMALL, "cover", "--region", str(tmp_path / "lake.geojson"), "--episodes", "20", "--n-agents", "5",
-               "--radius-m", "150", "--out", str(tmp_path / "out"), "--no-progress", stdout=subprocess.PIPE, text=True)
+    proc = cli(*SMALL, "cover", "--method", "cr", "--region", str(tmp_path / "lake.geojson"), "--episodes", "20",
+               "--n-agents", "5", "--radius-m", "150", "--out", str(tmp_path / "out"), "--no-progress",
+               stdout=subprocess.PIPE, text=True)
     assert proc.wait(timeout=600) == 0
     text = proc.stdout.read()
     assert "of the Lloyd layout" in text and "EPSG:32632" in text
@@ -168,10 +170,11 @@ def test_every_verb_works_from_any_folder(tmp_path):
     assert (tmp_path / "X" / "actors.pt").exists()
     lake = Polygon([(6.56, 46.50), (6.575, 46.502), (6.58, 46.51), (6.565, 46.512), (6.555, 46.505)])
     gpd.GeoDataFrame({"name": ["lake"]}, geometry=[lake], crs="EPSG:4326").to_file(tmp_path / "lake.geojson")
-    cover = cli(*SMALL, "cover", "--region", "lake.geojson", "--episodes", "20", "--no-progress", cwd=tmp_path,
-                stderr=subprocess.PIPE, text=True)
+    cover = cli("--set", "evaluate.episodes=4", "cover", "--region", "lake.geojson", "--no-progress", cwd=tmp_path,
+                stderr=subprocess.PIPE, text=True)  # the general policy installed with the package
     assert cover.wait(timeout=600) == 0, cover.stderr.read()
-    assert (tmp_path / "runs" / "cover" / "summary.json").exists()
+    summary = json.loads((tmp_path / "runs" / "cover" / "summary.json").read_text())
+    assert summary["policy"].endswith("general.pt") and summary["max_outside_m"] == 0.0
 
 
 def test_init_writes_the_defaults_once(tmp_path):
