@@ -244,7 +244,7 @@ def evaluate_general(args: argparse.Namespace, params: Params) -> int:
         return "n/a" if result[key] is None else f"{result[key]:.3f}"
 
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes); "
-          f"Lloyd {lloyd['coverage']['mean']:.3f} ({lloyd['gains']} gains), ratio {ratio('ratio_to_lloyd')}; "
+          f"Lloyd {lloyd['coverage']['mean']:.3f} (gains {lloyd['gains']}), ratio {ratio('ratio_to_lloyd')}; "
           f"best layout {rivals['best_layout']['coverage']['mean']:.3f}, ratio {ratio('ratio_to_best')}; "
           f"furthest outside the water {result['max_outside_m']:.3g} m; wrote {out}")
     return 0
