@@ -24,7 +24,8 @@
    (``benchmarks/benchmarl_side_by_side.py``; sections 3's VMAS and 5 need the ``bench`` extra, which
    ``make bench`` installs).
 6. One update of the general policy's learner (``shared_maddpg``: the shared actor and the pooled critic) on a
-   minibatch shaped as its training samples it, against its matmul floor, and where its time goes.
+   minibatch shaped as its training samples it, against its matmul floor and against the same update with its two
+   losses compiled by ``torch.compile`` (inductor), and where its time goes.
 
 Everything runs on one thread (``torch.set_num_threads(1)``), the budget of one core of the 2-core machine, and
 sections 0-3 with the allocator setting of the pipeline's training processes.
@@ -42,6 +43,7 @@ from pathlib import Path
 import benchmarl_side_by_side as benchmarl_bench  # beside this file
 import numpy as np
 import torch
+from torch import nn
 
 from replicate.config import load_params, run_config
 from replicate.env import CoverageEnv, observation_columns
@@ -368,15 +370,66 @@ def machine_section(params) -> dict[str, float]:
     return floors
 
 
+class CompiledSharedMADDPG(SharedMADDPG):
+    """The general policy's update with its two losses compiled by ``torch.compile`` (inductor, CPU): the
+    candidate the update is measured against; the optimiser steps and the soft update stay eager."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.critic_loss = torch.compile(self._critic_loss, dynamic=False)
+        self.actor_loss = torch.compile(self._actor_loss, dynamic=False)
+
+    def _critic_loss(self, b: FleetBatch):
+        live = b.live.float()
+        with torch.no_grad():
+            next_act, _ = self.actor_target(b.next_obs)
+            q_next = self.critic_target(b.next_obs, next_act, b.next_pos, b.next_live) * b.next_live
+            y = b.rew + b.disc[:, None] * q_next
+        q = self.critic(b.obs, b.act, b.pos, b.live)
+        return (((q - y) ** 2) * live).sum() / live.sum().clamp(min=1.0)
+
+    def _actor_loss(self, b: FleetBatch):
+        live = b.live.float()
+        with torch.no_grad():
+            pooled = self.critic.pooled(b.obs, b.act, b.pos, b.live)
+        mu, pre = self.actor(b.obs)
+        q_pi = self.critic(b.obs, mu, b.pos, b.live, pooled=pooled)
+        reg = self.cfg.actor_reg * ((pre**2).mean(-1) * live).sum()
+        return (-(q_pi * live).sum() + reg) / live.sum().clamp(min=1.0)
+
+    def update(self, b: FleetBatch) -> None:
+        for loss, opt, net, inputs in ((self.critic_loss, self.critic_opt, self.critic, None),
+                                       (self.actor_loss, self.actor_opt, self.actor, list(self.actor.parameters()))):
+            value = loss(b)
+            opt.zero_grad()
+            value.backward(inputs=inputs)
+            nn.utils.clip_grad_norm_(net.parameters(), self.cfg.grad_clip)
+            opt.step()
+        with torch.no_grad():
+            for net, target in ((self.critic, self.critic_target), (self.actor, self.actor_target)):
+                for p, tp in zip(net.parameters(), target.parameters()):
+                    tp.lerp_(p, self.cfg.tau)
+
+
 def general_update_section(params, floors: dict[str, float]) -> None:
     print("== 6. one update of the general policy (shared actor, pooled critic), at its training shapes ==")
     agent, batch = general_agent_and_batch(params)
+    compiled = CompiledSharedMADDPG(agent.actor.net[0].in_features, 2, params.general.learner, seed=0)
+    t = time.perf_counter()
+    compiled.update(batch)
+    compile_s = time.perf_counter() - t
     agent.update(batch)
-    per_update = float(np.median([best_of(lambda: [agent.update(batch) for _ in range(5)]) / 5 for _ in range(3)]))
+    times = {k: [] for k in ("eager", "compiled")}
+    for _ in range(3):  # alternately, so that the machine's drift hits both alike
+        for k, a in (("eager", agent), ("compiled", compiled)):
+            times[k].append(best_of(lambda a=a: [a.update(batch) for _ in range(5)]) / 5)
+    per_update, with_compile = float(np.median(times["eager"])), float(np.median(times["compiled"]))
     n_max, live = batch.live.shape[1], batch.live.float().mean().item()
     print(f"{per_update * 1e3:.1f} ms per update ({batch.live.shape[0]} fleets padded to {n_max} buoys, {live:.0%} of "
           f"the slots live); the matmul floor {floors['general'] * 1e3:.1f} ms is {floors['general'] / per_update:.0%}"
           f" of it ({per_update / floors['general']:.2f}x the floor)")
+    print(f"with its two losses compiled (torch.compile, inductor): {with_compile * 1e3:.1f} ms "
+          f"({with_compile / per_update:.2f}x the eager update; {compile_s:.0f} s to compile)")
     parts = update_breakdown(*general_agent_and_batch(params))
     print("where it goes (every aten call timed, so the total runs slower): " + "; ".join(
         f"{k} {ms:.2f} ms" + (f" at {gf:.1f} GFLOPS" if gf == gf else "") for k, (ms, gf) in sorted(parts.items())))
