@@ -163,7 +163,7 @@ def test_an_unfinished_matrix_is_named_at_the_top(params, tmp_path):
 
 def test_the_general_policys_bars_are_counted_per_cell(params):
     """``report.general``: each bar counts the cells that meet it; one cell short fails the bar."""
-    from replicate.pipeline.report import general_section, general_verdicts
+    from replicate.pipeline.report import bar_table, general_section, general_verdicts
 
     def cell(region, event, general, lloyd, best=0.78, naive=0.7, outside=0.0):
         rivals = {"naive_tuned": naive, "lloyd_tuned": lloyd, "geodesic_lloyd": lloyd, "best_layout": best}
@@ -189,6 +189,11 @@ def test_the_general_policys_bars_are_counted_per_cell(params):
     verdicts = {bar: (n, v) for bar, n, v in general_verdicts(cells, params.report.general)}
     assert verdicts["still water: ≥ 98% of lloyd_tuned"] == ("1 of 3", "not met")
     assert verdicts["drift: ≥ 90% of its own still-water coverage"] == ("0 of 1", "not met")  # 0.62 < 0.9 × 0.70
+    for c in cells[1:]:  # every cell with both seeds: the bars per seed alone, and each seed's ratio to Lloyd
+        c.setdefault("seeds", {k: {"coverage": c["coverage"], "max_outside_m": c["max_outside_m"]} for k in seeds})
+    table = "\n".join(bar_table(cells, params.report.general, ["s1", "s2"]))
+    assert "| still water: ≥ 98% of lloyd_tuned | 1 of 3 | **not met** | 2 of 3 | 1 of 3 |" in table
+    assert "s1 mean 0.984, worst 0.857; s2 mean 0.953, worst 0.857." in table  # s2: (0.70/0.775 + 1.1 + 0.6/0.7) / 3
     summary = {"runs": {"tuned/cr/square": {"robustness": {"corner": {"coverage": {"mean": 0.74, "lo": 0.73,
                                                                                    "hi": 0.75, "n": 10}}}}}}
     text = "\n".join(general_section(params, {"policy": "policies/general.pt", "cells": cells}, summary))

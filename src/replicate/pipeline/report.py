@@ -288,6 +288,18 @@ def seed_coverages(cell: dict) -> dict[str, float]:
     return {label: r["coverage"]["mean"] for label, r in seeds.items()}
 
 
+def one_seed(cells: list[dict], label: str) -> list[dict]:
+    """The suite's cells as if ``label`` were the only seed."""
+    return [{**c, "coverage": c["seeds"][label]["coverage"], "max_outside_m": c["seeds"][label]["max_outside_m"],
+             "seeds": {label: c["seeds"][label]}} for c in cells]
+
+
+def still_ratios(cells: list[dict]) -> list[float]:
+    """Coverage / lloyd_tuned's of every still-water cell (the cells' own policy)."""
+    return [c["coverage"]["mean"] / c["baselines"]["lloyd_tuned"]["coverage"]["mean"] for c in cells
+            if c["event"] == "none"]
+
+
 def general_verdicts(cells: list[dict], t) -> list[tuple[str, str, str]]:
     """(bar, how many cells meet it, verdict) of the general policy's targets (``report.general``, ``t``): a cell
     meets a bar when every seed's policy does."""
@@ -377,6 +389,22 @@ def general_rows(params, cells: list[dict], summary: dict) -> list[str]:
     return rows
 
 
+def bar_table(cells: list[dict], t, seeds: list[str]) -> list[str]:
+    """The bars of ``report.general`` (``t``): cells meeting each with every seed (the verdict), then with each
+    seed alone; and each seed's mean and worst ratio to lloyd_tuned in still water."""
+    per_seed = [general_verdicts(one_seed(cells, s), t) for s in seeds] if all("seeds" in c for c in cells) else []
+    head = "| bar (`report.general`) | cells meeting it, every seed | verdict |" + "".join(
+        f" {s} alone |" for s in seeds[:len(per_seed)])
+    rows = [head, "|---|---|---|" + "---|" * len(per_seed)]
+    for k, (bar, n, v) in enumerate(general_verdicts(cells, t)):
+        rows.append(f"| {bar} | {n} | **{v}** |" + "".join(f" {seed[k][1]} |" for seed in per_seed))
+    if per_seed:
+        ratios = {s: still_ratios(one_seed(cells, s)) for s in seeds}
+        rows += ["", "Still water, coverage / lloyd_tuned per seed: " + "; ".join(
+            f"{s} mean {sum(r) / len(r):.3f}, worst {min(r):.3f}" for s, r in ratios.items()) + "."]
+    return rows
+
+
 def general_section(params, general: dict, summary: dict | None = None) -> list[str]:
     cells, t = general["cells"], params.report.general
     su = params.general.suite
@@ -396,8 +424,7 @@ def general_section(params, general: dict, summary: dict | None = None) -> list[
              "offline limit for the buoys in service. \"tuned CR\" is the per-region `tuned` CR-MARL of the "
              "robustness table (its own training physics, not the wall; mean [CI] over its seeds), where a "
              "scenario matches.", "",
-             "| bar (`report.general`) | cells meeting it | verdict |", "|---|---|---|",
-             *[f"| {bar} | {n} | **{v}** |" for bar, n, v in general_verdicts(cells, t)], "",
+             *bar_table(cells, t, general.get("seeds", [])), "",
              "| lake | N | start | event | general policy | every seed | tuned CR | naive_tuned | lloyd_tuned | "
              "geodesic Lloyd | best layout | general / lloyd_tuned |", "|" + "---|" * 12,
              *general_rows(params, cells, summary or {}), ""]
