@@ -282,7 +282,7 @@ def bedok_map(lonlat: Polygon, utm: Polygon, utm_crs: str, source: str, attribut
 def general_lakes(panels: list[dict], radius: float, edges: int, path, title: str) -> Path:
     """The general policy on several lakes side by side: each panel a dict with ``region`` (Polygon), ``trace``
     [T + 1, N, 2] (one episode) and ``title``; trails, final coverage polygons, final positions."""
-    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 5))
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 5.5))
     for ax, panel in zip(np.atleast_1d(axes), panels, strict=True):
         trace = panel["trace"]
         draw_region(ax, panel["region"])
@@ -294,5 +294,5 @@ def general_lakes(panels: list[dict], radius: float, edges: int, path, title: st
         ax.plot(trace[0, :, 0], trace[0, :, 1], "k+", ms=4, alpha=0.5)
         ax.plot(trace[-1, :, 0], trace[-1, :, 1], "k.", ms=4)
         ax.set_title(panel["title"], fontsize=9)
-    fig.suptitle(title, fontsize=11, y=1.06)  # above the panels' two-line titles
+    fig.suptitle(title, fontsize=11, y=1.08)  # above the panels' three-line titles
     return save(fig, path)

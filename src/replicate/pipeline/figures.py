@@ -153,7 +153,7 @@ def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[P
         lloyd = "lloyd_tuned" if "lloyd_tuned" in cell["baselines"] else "lloyd"  # a policy without tuned gains
         rival = {k: cell["baselines"][k]["coverage"]["mean"] for k in (lloyd, "best_layout")}
         panels.append({"region": region.polygon, "trace": trace, "title": (
-            f"{name}, N = {n}: coverage {cover:.2f} in this episode\nmean of {cell['coverage']['n']}: "
+            f"{name}\nN = {n}: coverage {cover:.2f} in this episode\nmean of {cell['coverage']['n']}: "
             f"{cell['coverage']['mean']:.3f}; {lloyd} {rival[lloyd]:.3f}, best layout {rival['best_layout']:.3f}")})
     written = [plots.general_lakes(panels, c.radius, c.edges, fig / "fig_general_lakes.png",
                                    f"The general policy on held-out lakes it never trained on ({start} starts; "
