@@ -317,6 +317,24 @@ def cmd_cover(args: argparse.Namespace) -> int:
     import tempfile
 
     params = load_params(args.params, overrides(args.set))
+    check_cover_args(args, params)
+    out = Path(args.out)
+    created = claim_run_folder(out, args.force)
+    try:
+        s = cover_into(args, params, out, tempfile)
+    except BaseException:
+        if created and not (out / "run" / "checkpoint.pt").exists():
+            import shutil
+
+            shutil.rmtree(out, ignore_errors=True)  # refused or interrupted before training: leave nothing behind
+        raise
+    print_cover(args, s, out)
+    return 0
+
+
+def check_cover_args(args: argparse.Namespace, params: Params) -> None:
+    """Refuse a bad combination of `cover`'s options by name, before anything is written; fill the defaults of
+    ``--method cr`` and the general policy's file."""
     check_seed(args.seed)
     if args.method == "general":
         if args.episodes is not None:
@@ -343,16 +361,10 @@ def cmd_cover(args: argparse.Namespace) -> int:
         positive(args.radius_m, "--radius-m")
     if args.n_agents is not None and not 1 <= args.n_agents <= MAX_AGENTS:
         raise ConfigError(f"--n-agents must be between 1 and {MAX_AGENTS}, got {args.n_agents}")
-    out = Path(args.out)
-    created = claim_run_folder(out, args.force)
-    try:
-        s = cover_into(args, params, out, tempfile)
-    except BaseException:
-        if created and not (out / "run" / "checkpoint.pt").exists():
-            import shutil
 
-            shutil.rmtree(out, ignore_errors=True)  # refused or interrupted before training: leave nothing behind
-        raise
+
+def print_cover(args: argparse.Namespace, s: dict, out: Path) -> None:
+    """The summary of a `cover` run, as the user reads it."""
     cov, lloyd = s["coverage"], s["lloyd_coverage"]
     print(f"{s['region']}: {s['n_agents']} buoys of radius {s['radius_m']:.3g} m on {s['area_m2']:.4g} m² "
           f"({s['utm_crs']}, 1 sim m = {s['scale_m_per_sim_m']:.4g} m), T = {s['episode_length']}")
@@ -363,11 +375,10 @@ def cmd_cover(args: argparse.Namespace) -> int:
               f"(95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over evaluation episodes) vs {lloyd_name} {lloyd['mean']:.3f} "
               f"({s['ratio_to_lloyd']:.0%}) and the best layout {best:.3f} ({s['ratio_to_best']:.0%}); "
               f"no buoy left the water by more than {s['max_outside_m']:.3g} m; wrote {out}/")
-        return 0
+        return
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over evaluation episodes of this one "
           f"trained policy; another training seed can land outside it) vs Lloyd {lloyd['mean']:.3f}: "
           f"{s['ratio_to_lloyd']:.0%} of the Lloyd layout; wrote {out}/")
-    return 0
 
 
 def general_policy_file(path: str | None) -> Path:
