@@ -370,7 +370,7 @@ def print_cover(args: argparse.Namespace, s: dict, out: Path) -> None:
           f"({s['utm_crs']}, 1 sim m = {s['scale_m_per_sim_m']:.4g} m), T = {s['episode_length']}")
     if args.method == "general":
         best = s["baselines"]["best_layout"]["coverage"]["mean"]
-        lloyd_name = "tuned Lloyd" if "lloyd_tuned" in s["baselines"] else "Lloyd"
+        lloyd_name = "tuned Lloyd" if s["lloyd_baseline"] == "lloyd_tuned" else "Lloyd"
         print(f"general policy{' fine-tuned' if args.finetune else ', zero-shot'}: coverage {cov['mean']:.3f} "
               f"(95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over evaluation episodes) vs {lloyd_name} {lloyd['mean']:.3f} "
               f"({s['ratio_to_lloyd']:.0%}) and the best layout {best:.3f} ({s['ratio_to_best']:.0%}); "

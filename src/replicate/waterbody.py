@@ -151,10 +151,12 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
     result = evaluate_policy(policy, region, params, n, "corner", progress=progress)
     c = params.coverage
     trace, _ = general_episode(policy, region, params, n, "corner")
-    lloyd = result["baselines"].get("lloyd_tuned", result["baselines"].get("lloyd"))["coverage"]["mean"]
+    lloyd = "lloyd_tuned" if "lloyd_tuned" in result["baselines"] else "lloyd"  # hand-set without tuned gains
+    lloyd_coverage = result["baselines"][lloyd]["coverage"]
     plots.spread(region.polygon, start_patch(region.polygon, params.world.start_patch), trace[-1], c.radius,
                  c.edges, out / "spread.png", f"general policy{' fine-tuned' if finetune else ''} on {region.name}: "
-                 "an evaluation episode", trace, f"coverage {result['coverage']['mean']:.2f}, Lloyd {lloyd:.2f}")
+                 "an evaluation episode", trace,
+                 f"coverage {result['coverage']['mean']:.2f}, Lloyd {lloyd_coverage['mean']:.2f}")
     summary = {
         "region": region.name,
         "utm_crs": region.utm_crs,
@@ -167,8 +169,8 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
         "finetune_episodes": trained["general"]["episodes"] if finetune else 0,
         "coverage": result["coverage"],
         "baselines": result["baselines"],
-        "lloyd_coverage": result["baselines"]["lloyd_tuned" if "lloyd_tuned" in result["baselines"] else "lloyd"][
-            "coverage"],
+        "lloyd_baseline": lloyd,
+        "lloyd_coverage": lloyd_coverage,
         "ratio_to_lloyd": result["ratio_to_lloyd"],
         "ratio_to_best": result["ratio_to_best"],
         "max_outside_m": result["max_outside_m"],
