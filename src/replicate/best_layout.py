@@ -3,7 +3,9 @@
 The limit every method is read against. Greedy placement puts each buoy in turn where its coverage polygon adds
 the most water not yet covered, among candidate points on a grid over the region; a local search then moves one
 buoy at a time to the best of eight points around it, shrinking the step when no move helps, until the step is
-below ``tolerance``. Every score is exact: A(∪Cov ∩ Reg) by shapely, vectorised over the candidates.
+below ``tolerance``; the best of four such searches from shifted grids is kept. Every score is exact:
+A(∪Cov ∩ Reg) by shapely, vectorised over the candidates, with only the candidates, neighbours and water within
+reach of a change scored again (the same areas, 4-6x faster than scoring the whole fleet and lake).
 """
 
 from __future__ import annotations
@@ -13,6 +15,11 @@ import functools
 import numpy as np
 import shapely
 from shapely.geometry import Polygon
+
+TIE = 1e-9  # m²: gains closer than this are equal (the same water scored through other overlays)
+# the candidate grid's origin, in grid spacings: the search ends in another local optimum from each. On 6 suite
+# lakes at N = 9 and 20 the four differ by <= 0.0015 in coverage, on one lake by 0.014 (0.922 to 0.935)
+GRID_OFFSETS = ((0.0, 0.0), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25))
 
 
 def coverage_polygons(xy: np.ndarray, radius: float, edges: int) -> np.ndarray:
@@ -30,45 +37,81 @@ def covered_area(region: Polygon, xy: np.ndarray, radius: float, edges: int) -> 
 
 def gains(region: Polygon, covered, candidates: np.ndarray, radius: float, edges: int) -> np.ndarray:
     """Water each candidate point [C, 2] would add to ``covered`` (a geometry, or None for nothing yet). → [C]."""
-    polys = shapely.intersection(coverage_polygons(candidates, radius, edges), region)
-    if covered is None:
-        return shapely.area(polys)
-    return shapely.area(shapely.difference(polys, covered))
+    return added(shapely.intersection(coverage_polygons(candidates, radius, edges), region), covered)
 
 
-def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spacing: float | None = None,
-                tolerance: float = 1e-3) -> tuple[np.ndarray, float]:
-    """(positions [N, 2], coverage fraction) of the best layout found (module docstring). ``spacing`` of the
-    candidate grid defaults to a tenth of the radius."""
-    spacing = radius / 10 if spacing is None else spacing
-    minx, miny, maxx, maxy = region.bounds
-    gx, gy = np.meshgrid(np.arange(minx, maxx + spacing, spacing), np.arange(miny, maxy + spacing, spacing))
-    grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
-    grid = grid[shapely.intersects_xy(region.buffer(radius), grid[:, 0], grid[:, 1])]  # a polygon can reach in
+def added(polys: np.ndarray, covered) -> np.ndarray:
+    """Area of each polygon [C] (already clipped to the water) outside ``covered`` (a geometry, or None). → [C]."""
+    return shapely.area(polys if covered is None else shapely.difference(polys, covered))
+
+
+def near(xy: np.ndarray, centre: np.ndarray, reach: float) -> np.ndarray:
+    """Mask of the points [M, 2] within a square of half-side ``reach`` around ``centre`` [2] → [M] bool: the
+    only coverage polygons a polygon at ``centre`` can touch when ``reach`` ≥ 2·radius."""
+    return np.all(np.abs(xy - centre) <= reach, axis=1)
+
+
+def greedy(region: Polygon, grid: np.ndarray, n_agents: int, radius: float, edges: int) -> np.ndarray:
+    """Each buoy in turn on the grid point [G, 2] whose polygon adds the most water not yet covered → [N, 2].
+    Every candidate is clipped to the water once; after a placement only the candidates within reach of it are
+    scored again (the others' gains cannot change)."""
+    clipped = shapely.intersection(coverage_polygons(grid, radius, edges), region)
+    score = shapely.area(clipped)
     xy, covered = [], None
-    for _ in range(n_agents):  # greedy placement
-        best = int(np.argmax(gains(region, covered, grid, radius, edges)))
+    for _ in range(n_agents):
+        best = int(np.argmax(score >= score.max() - TIE))  # the first of the best: float noise breaks no tie
         xy.append(grid[best])
-        cov = shapely.intersection(coverage_polygons(grid[best:best + 1], radius, edges)[0], region)
-        covered = cov if covered is None else shapely.union(covered, cov)
-    xy = np.array(xy)
-    step = spacing
+        covered = clipped[best] if covered is None else shapely.union(covered, clipped[best])
+        touched = near(grid, grid[best], 2 * radius)
+        score[touched] = added(clipped[touched], covered)
+    return np.array(xy)
+
+
+def local_search(region: Polygon, xy: np.ndarray, step: float, radius: float, edges: int,
+                 tolerance: float) -> np.ndarray:
+    """Move one buoy at a time to the best of eight points ``step`` around it while that adds water, halving
+    ``step`` when no buoy moves, down to ``tolerance`` → positions [N, 2]. A move is scored against its
+    neighbours within reach and the water near it only: the same areas as against the whole fleet and lake."""
+    xy = xy.copy()
     compass = np.array([[np.cos(a), np.sin(a)] for a in np.arange(8) * np.pi / 4])
-    while step >= tolerance:  # local search, one buoy at a time
+    while step >= tolerance:
         improved = False
-        for i in range(n_agents):
-            others = np.delete(xy, i, axis=0)
-            rest = shapely.union_all(coverage_polygons(others, radius, edges)) if len(others) else None
-            rest = None if rest is None else shapely.intersection(rest, region)
+        for i in range(len(xy)):
+            reach = 2 * radius + step
+            others = near(xy, xy[i], reach)
+            others[i] = False
+            rest = shapely.union_all(coverage_polygons(xy[others], radius, edges)) if others.any() else None
+            x, y = xy[i]
+            water = shapely.intersection(region, shapely.box(x - reach, y - reach, x + reach, y + reach))
             moves = np.concatenate([xy[i:i + 1], xy[i] + step * compass])
-            g = gains(region, rest, moves, radius, edges)
+            g = gains(water, rest, moves, radius, edges)
             k = int(np.argmax(g))
-            if k > 0 and g[k] > g[0] + 1e-12:
+            if k > 0 and g[k] > g[0] + TIE:
                 xy[i] = moves[k]
                 improved = True
         if not improved:
             step /= 2
-    return xy, covered_area(region, xy, radius, edges) / region.area
+    return xy
+
+
+def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spacing: float | None = None,
+                tolerance: float = 1e-3) -> tuple[np.ndarray, float]:
+    """(positions [N, 2], coverage fraction) of the best layout found (module docstring): greedy placement and
+    local search from the candidate grid at each of ``GRID_OFFSETS``, the best of them. ``spacing`` of the grid
+    defaults to a tenth of the radius."""
+    spacing = radius / 10 if spacing is None else spacing
+    minx, miny, maxx, maxy = region.bounds
+    reach = region.buffer(radius)  # a polygon centred outside the water can reach in
+    best = (None, -1.0)
+    for dx, dy in GRID_OFFSETS:
+        gx, gy = np.meshgrid(np.arange(minx + dx * spacing, maxx + spacing, spacing),
+                             np.arange(miny + dy * spacing, maxy + spacing, spacing))
+        grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        grid = grid[shapely.intersects_xy(reach, grid[:, 0], grid[:, 1])]
+        xy = local_search(region, greedy(region, grid, n_agents, radius, edges), spacing, radius, edges, tolerance)
+        cov = covered_area(region, xy, radius, edges) / region.area
+        best = (xy, cov) if cov > best[1] + TIE else best
+    return best
 
 
 @functools.lru_cache(maxsize=64)

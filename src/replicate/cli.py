@@ -180,7 +180,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.policy is not None:
         return evaluate_general(args, params)
     given = [flag for flag, value, default in (("--n-agents", args.n_agents, None), ("--starts", args.starts, "corner"),
-                                               ("--lose", args.lose, 0), ("--current", args.current, None))
+                                               ("--lose", args.lose, 0), ("--current", args.current, None),
+                                               ("--geodesic", args.geodesic, False))
              if value != default]
     if given:
         raise ConfigError(f"{', '.join(given)}: options of a general policy; give --policy FILE with them")
@@ -235,7 +236,8 @@ def evaluate_general(args: argparse.Namespace, params: Params) -> int:
     region = dataclasses.replace(region, polygon=affinity.scale(region.polygon, s, s, origin=(0, 0)),
                                  scale=region.scale / s)
     out = claim_out_file(Path(args.out or f"policy-{region.name}-n{n}.json"), args.force)
-    result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current)
+    result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current,
+                             geodesic=args.geodesic)
     artifacts.write_json(out, result)
     cov, rivals = result["coverage"], result["baselines"]
     lloyd = next(rivals[k] for k in ("lloyd_tuned", "lloyd") if k in rivals)
@@ -607,6 +609,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="release in the corner patch (default) or scattered over the water")
     g.add_argument("--lose", type=int, default=0, help="buoys lost half-way (default 0)")
     g.add_argument("--current", default=None, help="a uniform drift U,V in simulation m/s (top speed 2)")
+    g.add_argument("--geodesic", action="store_true", help="also geodesic Lloyd (cells and paths through the "
+                   "water; the slowest comparison, left out by default)")
     e.set_defaults(func=cmd_evaluate)
 
     tg = sub.add_parser("train-general", help="train one policy for every lake and fleet (params.yaml general)",

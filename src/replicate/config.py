@@ -139,6 +139,9 @@ def check_general(g: GeneralConfig, regions: dict) -> None:
     for start in su.starts:
         if start not in ("corner", "random"):
             raise ConfigError(f"general.suite.starts: 'corner' or 'random', got {start!r}")
+    if "none" not in su.events or not set(su.events) <= set(EVENTS):  # the events are read against still water
+        raise ConfigError(f"general.suite.events: 'none' (still water) and any of {list(EVENTS[1:])}, got "
+                          f"{list(su.events)}")
     within(su.lose_fraction, "general.suite.lose_fraction", 0, 0.5, open_lo=True)  # a fleet keeps most of itself
     within(su.current, "general.suite.current", 0)
     within(su.episodes, "general.suite.episodes", 1)
@@ -478,6 +481,9 @@ class SharedLearnerConfig:
     pool_neighbours: int = 0  # the critic pools only each buoy's K nearest others (0: all of them)
 
 
+EVENTS = ("none", "lose", "current")  # the suite's events: still water, a share of the fleet lost at T/2, a drift
+
+
 @dataclass(frozen=True)
 class SuiteConfig:
     """The general policy's evaluation suite (``pipeline.general``): lakes × fleets × starts × events."""
@@ -486,6 +492,7 @@ class SuiteConfig:
     named_fleets: tuple[int, ...]  # N on the square, the rectangle and Bedok (each at the paper's density)
     lake_fleets: tuple[int, ...]  # N on every held-out lake (each at its own density)
     starts: tuple[str, ...]
+    events: tuple[str, ...]  # of ``EVENTS``, on every lake and fleet
     lose_fraction: float  # the "lose" event: this share of the fleet lost at T/2
     current: float  # the "current" event: a uniform drift of this speed, m/s
     episodes: int  # per cell

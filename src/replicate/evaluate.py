@@ -216,11 +216,13 @@ def evaluate_baseline(name: str, params: Params, region: Region, config: str = "
     return out
 
 
-def general_baselines(params: Params, gains: dict | None) -> tuple[dict[str, baselines.Policy], str]:
+def general_baselines(params: Params, gains: dict | None,
+                      geodesic: bool = True) -> tuple[dict[str, baselines.Policy], str]:
     """The general policy's comparisons → ({name: policy}, how their gains were set). With ``gains`` (the study of
     ``tuning.general_baselines``, carried in the policy's metadata): ``naive_tuned``, ``lloyd_tuned`` and
     geodesic Lloyd with Lloyd's tuned gains, each tuned once on the policy's training worlds, never on the lake
-    evaluated; without them, the paper's hand-set ``naive`` and ``lloyd`` and geodesic Lloyd with Lloyd's."""
+    evaluated; without them, the paper's hand-set ``naive`` and ``lloyd`` and geodesic Lloyd with Lloyd's.
+    ``geodesic`` False leaves geodesic Lloyd out (its paths through the water cost the most of the three)."""
     ev = params.evaluate
     if gains:
         naive, lloyd = NaiveConfig(**gains["naive_tuned"]["gains"]), LloydConfig(
@@ -228,13 +230,15 @@ def general_baselines(params: Params, gains: dict | None) -> tuple[dict[str, bas
         names, how = ("naive_tuned", "lloyd_tuned"), "tuned on the policy's training worlds"
     else:
         naive, lloyd, names, how = ev.naive, ev.lloyd, ("naive", "lloyd"), "hand-set"
-    return {names[0]: baselines.naive_swarming(naive), names[1]: baselines.lloyd(lloyd),
-            "geodesic_lloyd": baselines.geodesic_lloyd(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)}, how
+    rivals = {names[0]: baselines.naive_swarming(naive), names[1]: baselines.lloyd(lloyd)}
+    if geodesic:
+        rivals["geodesic_lloyd"] = baselines.geodesic_lloyd(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)
+    return rivals, how
 
 
 def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
                     lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False,
-                    seeds: dict[str, str | Path] | None = None) -> dict:
+                    seeds: dict[str, str | Path] | None = None, geodesic: bool = True) -> dict:
     """A general policy (``export.export_general``) on ``region`` with ``n_agents`` buoys, zero-shot: behind the
     wall, on its local sensors, ``evaluate.episodes`` episodes from the evaluation seed at ``start``, losing
     ``lose`` buoys half-way, in a uniform ``current`` (m/s). Beside it, under the same physics, starts and events,
@@ -243,7 +247,7 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     baselines', ``ratio_to_lloyd``, ``ratio_to_best`` and ``max_outside_m``: the largest distance of any buoy
     outside the water at any step of any episode. ``seeds`` ({label: policy file}, e.g. every trained seed of
     the general policy) are run on the same episodes, each under ``"seeds"`` with its ``coverage`` and
-    ``max_outside_m``; the baselines run once for all."""
+    ``max_outside_m``; the baselines run once for all. ``geodesic`` False leaves geodesic Lloyd out."""
     import dataclasses
 
     from .best_layout import best_coverage
@@ -281,7 +285,7 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
            "episodes": ev.episodes, **learned(module, meta), "baselines": {}}
     if others:
         out["seeds"] = {label: learned(*policy) for label, policy in others.items()}
-    rivals, how = general_baselines(params, meta.get("baseline_gains"))
+    rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic)
     for name, policy in rivals.items():
         out["baselines"][name] = {"coverage": coverage(episodes(policy, None)[1]), "gains": how}
     best = best_coverage(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges)

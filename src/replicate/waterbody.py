@@ -148,7 +148,7 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
         trained = trainer.run()
         policy = out / "policy.pt"
         export_general(out / "finetune" / "actor.pt", policy, params.world.sensitivity, meta.get("baseline_gains"))
-    result = evaluate_policy(policy, region, params, n, "corner", progress=progress)
+    result = evaluate_policy(policy, region, params, n, "corner", progress=progress, geodesic=False)
     c = params.coverage
     trace, _ = general_episode(policy, region, params, n, "corner")
     lloyd = "lloyd_tuned" if "lloyd_tuned" in result["baselines"] else "lloyd"  # hand-set without tuned gains

@@ -95,13 +95,10 @@ def train_general(params_path: str, out_dir: str, gains_path: str | None, worker
 
 
 # ---- the evaluation suite: every lake × fleet × start × event ----------------------------------------------
-EVENTS = ("none", "lose", "current")
-
-
 @dataclass(frozen=True)
 class SuiteCell:
     """One cell of the generalisation table: a lake (a named region or a held-out lake), a fleet, a start, an
-    event (``EVENTS``: still water, a share of the fleet lost at T/2, a uniform drift)."""
+    event (``config.EVENTS``: still water, a share of the fleet lost at T/2, a uniform drift)."""
 
     region: str
     n_agents: int
@@ -133,8 +130,8 @@ def suite_cells(params) -> list[SuiteCell]:
     su = params.general.suite
     cells = []
     for name in suite_lakes(params):
-        fleets, events = (su.named_fleets, EVENTS) if name in params.regions else (su.lake_fleets, ("none",))
-        cells += [SuiteCell(name, n, start, event) for n in fleets for start in su.starts for event in events]
+        fleets = su.named_fleets if name in params.regions else su.lake_fleets
+        cells += [SuiteCell(name, n, start, event) for n in fleets for start in su.starts for event in su.events]
     return cells
 
 
