@@ -38,21 +38,25 @@ PAPER_START = StartsConfig("corner")
 def rollout(env: CoverageEnv, policy, steps: int, seed: int, starts: StartsConfig = PAPER_START,
             bar=None) -> dict:
     """Run ``policy`` for ``steps`` from a reset with ``seed`` at ``starts.start``, losing ``starts.lose`` buoys
-    after half the steps (drawn from a generator of ``seed``): positions at every step [steps + 1, E, N, 2],
-    the live buoys' last positions [E, N_live, 2], and each agent's return under the environment's reward [E, N]
-    (zeros when it has none). ``bar``, a tqdm bar, counts the steps."""
+    after half the steps (drawn from a generator of ``seed``): positions at every step [steps + 1, E, N, 2], the
+    buoys in service at every step [steps + 1, E, N] (a lost buoy is out from the frame it is lost at), the live
+    buoys' last positions [E, N_live, 2], and each agent's return under the environment's reward [E, N] (zeros
+    when it has none). ``bar``, a tqdm bar, counts the steps."""
     env.reset(seed, start=starts.start)
     loss_rng = np.random.default_rng([seed, 1])
-    trace = [env.pos.copy()]
+    trace, alive = [env.pos.copy()], [np.ones((env.n_envs, env.n_agents), bool)]
     returns = np.zeros((env.n_envs, env.n_agents))
     for t in range(steps):
         if starts.lose and t == steps // 2:
             env.lose(starts.lose, loss_rng)
+            alive[-1] = env.alive.copy()  # lost where they stand
         returns += env.step(policy(env)).reward
         trace.append(env.pos.copy())
+        alive.append(alive[-1] if env.alive is None else env.alive.copy())
         if bar is not None:
             bar.update(1)
-    return {"positions": np.stack(trace), "live": env.live_positions().copy(), "returns": returns}
+    return {"positions": np.stack(trace), "alive": np.stack(alive), "live": env.live_positions().copy(),
+            "returns": returns}
 
 
 def robustness(env: CoverageEnv, policy, params: Params, region: Region, rc: RunConfig, bar=None) -> dict:
@@ -248,14 +252,11 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     outside the water at any step of any episode. ``seeds`` ({label: policy file}, e.g. every trained seed of
     the general policy) are run on the same episodes, each under ``"seeds"`` with its ``coverage`` and
     ``max_outside_m``; the baselines run once for all. ``geodesic`` False leaves geodesic Lloyd out."""
-    import dataclasses
-
     from .best_layout import best_coverage
     from .config import SensorsConfig
-    from .currents import Current
     from .shore import distance_outside
     from .stats import mean_interval
-    from .worlds import horizon, world_env
+    from .worlds import horizon
 
     module, meta = general_policy(policy_path)
     others = {label: general_policy(path) for label, path in (seeds or {}).items()}
@@ -264,10 +265,7 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
 
     def episodes(policy, sensors: SensorsConfig | None) -> np.ndarray:
         """Every buoy's position at every step [T + 1, E, N, 2] and the live buoys' last [E, N_live, 2]."""
-        config = dataclasses.replace(params.general, episode_length=steps, sensors=sensors or params.general.sensors)
-        env = world_env(params, config, region, n_agents, ev.episodes, 0, reward=False, sensors=sensors is not None)
-        if current is not None:
-            env.set_current(Current.uniform(np.broadcast_to(np.asarray(current, float), (ev.episodes, 2))))
+        env, _ = general_world(params, region, n_agents, ev.episodes, sensors, current)
         trace = rollout(env, policy, steps, ev.seed, StartsConfig(start=start, lose=lose))
         return trace["positions"], trace["live"]
 
@@ -310,30 +308,31 @@ def general_episode(policy_path: str | Path, region: Region, params: Params, n_a
                     seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One episode of a general policy as ``evaluate_policy`` runs it (the wall, its sensors, the event) for
     the figures: positions [T + 1, N, 2] and the buoys in service [T + 1, N]."""
+    from .config import SensorsConfig
+
+    module, meta = general_policy(policy_path)
+    env, steps = general_world(params, region, n_agents, 1, SensorsConfig(**meta["sensor_config"]), current)
+    seed = params.evaluate.seed if seed is None else seed
+    trace = rollout(env, fleet_policy(module), steps, seed, StartsConfig(start=start, lose=lose))
+    return trace["positions"][:, 0], trace["alive"][:, 0]
+
+
+def general_world(params: Params, region: Region, n_agents: int, n_envs: int, sensors,
+                  current: tuple[float, float] | None) -> tuple[CoverageEnv, int]:
+    """The world a general policy is evaluated in → (environment, T): behind the wall, T for the region's size
+    (``worlds.horizon``), in a uniform ``current`` (m/s) when given; observing ``sensors`` (a
+    ``SensorsConfig``, the policy's), or nothing for the baselines (None)."""
     import dataclasses
 
-    from .config import SensorsConfig
     from .currents import Current
     from .worlds import horizon, world_env
 
-    module, meta = general_policy(policy_path)
     steps = horizon(params.general, region, params.world.region_area)
-    config = dataclasses.replace(params.general, episode_length=steps, sensors=SensorsConfig(**meta["sensor_config"]))
-    env = world_env(params, config, region, n_agents, 1, 0, reward=False)
+    config = dataclasses.replace(params.general, episode_length=steps, sensors=sensors or params.general.sensors)
+    env = world_env(params, config, region, n_agents, n_envs, 0, reward=False, sensors=sensors is not None)
     if current is not None:
-        env.set_current(Current.uniform(np.asarray([current], float)))
-    seed = params.evaluate.seed if seed is None else seed
-    env.reset(seed, start=start)
-    loss_rng, act = np.random.default_rng([seed, 1]), fleet_policy(module)  # the losses of ``rollout``
-    trace, alive = [env.pos[0].copy()], [np.ones(n_agents, bool)]
-    for t in range(steps):
-        if lose and t == steps // 2:
-            env.lose(lose, loss_rng)
-            alive[-1] = env.alive[0].copy()  # lost where they stand: this frame already shows it
-        env.step(act(env))
-        trace.append(env.pos[0].copy())
-        alive.append(np.ones(n_agents, bool) if env.alive is None else env.alive[0].copy())
-    return np.stack(trace), np.stack(alive)
+        env.set_current(Current.uniform(np.broadcast_to(np.asarray(current, float), (n_envs, 2))))
+    return env, steps
 
 
 def general_policy(path: str | Path):
