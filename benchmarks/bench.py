@@ -51,7 +51,7 @@ from replicate.maddpg import MADDPG, ReplayBuffer, clip_grad_per_agent, soft_upd
 from replicate.maddpg_loop import LoopMADDPG
 from replicate.pipeline.matrix import cell_seeds, matrix_cells
 from replicate.regions import make_region
-from replicate.shared_maddpg import FleetBatch, SharedMADDPG
+from replicate.shared_maddpg import FleetBatch, SharedMADDPG, live_rows
 from replicate.train import Trainer, hold_freed_memory
 from replicate.worlds import baseline_worlds
 
@@ -372,35 +372,37 @@ def machine_section(params) -> dict[str, float]:
 
 class CompiledSharedMADDPG(SharedMADDPG):
     """The general policy's update with its two losses compiled by ``torch.compile`` (inductor, CPU): the
-    candidate the update is measured against; the optimiser steps and the soft update stay eager."""
+    candidate the update is measured against. The rows and neighbours (data-dependent shapes) are selected eagerly
+    as in ``SharedMADDPG.update``; the optimiser steps and the soft update stay eager."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self.critic_loss = torch.compile(self._critic_loss, dynamic=False)
         self.actor_loss = torch.compile(self._actor_loss, dynamic=False)
 
-    def _critic_loss(self, b: FleetBatch):
-        live = b.live.float()
+    def _critic_loss(self, b: FleetBatch, rows, now, then):
         with torch.no_grad():
-            next_act, _ = self.actor_target(b.next_obs)
-            q_next = self.critic_target(b.next_obs, next_act, b.next_pos, b.next_live) * b.next_live
-            y = b.rew + b.disc[:, None] * q_next
-        q = self.critic(b.obs, b.act, b.pos, b.live)
-        return (((q - y) ** 2) * live).sum() / live.sum().clamp(min=1.0)
+            next_act = b.act.new_zeros(b.act.shape)
+            next_act[b.next_live] = self.actor_target(b.next_obs[b.next_live])[0]
+            pool = self.critic_target.pooled(b.next_obs, next_act, then)
+            q_next = self.critic_target.score(b.next_obs[rows], next_act[rows], pool) * b.next_live[rows]
+            y = b.rew[rows] + b.disc[rows[0]] * q_next
+        q = self.critic.score(b.obs[rows], b.act[rows], self.critic.pooled(b.obs, b.act, now))
+        return ((q - y) ** 2).mean()
 
-    def _actor_loss(self, b: FleetBatch):
-        live = b.live.float()
+    def _actor_loss(self, b: FleetBatch, rows, now):
         with torch.no_grad():
-            pooled = self.critic.pooled(b.obs, b.act, b.pos, b.live)
-        mu, pre = self.actor(b.obs)
-        q_pi = self.critic(b.obs, mu, b.pos, b.live, pooled=pooled)
-        reg = self.cfg.actor_reg * ((pre**2).mean(-1) * live).sum()
-        return (-(q_pi * live).sum() + reg) / live.sum().clamp(min=1.0)
+            pool = self.critic.pooled(b.obs, b.act, now)
+        mu, pre = self.actor(b.obs[rows])
+        return -self.critic.score(b.obs[rows], mu, pool).mean() + self.cfg.actor_reg * (pre**2).mean()
 
     def update(self, b: FleetBatch) -> None:
-        for loss, opt, net, inputs in ((self.critic_loss, self.critic_opt, self.critic, None),
-                                       (self.actor_loss, self.actor_opt, self.actor, list(self.actor.parameters()))):
-            value = loss(b)
+        rows = live_rows(b.live)
+        now, then = self.critic.neighbours(b.pos, b.live, rows), self.critic.neighbours(b.next_pos, b.next_live, rows)
+        for loss, args, opt, net, inputs in (
+                (self.critic_loss, (b, rows, now, then), self.critic_opt, self.critic, None),
+                (self.actor_loss, (b, rows, now), self.actor_opt, self.actor, list(self.actor.parameters()))):
+            value = loss(*args)
             opt.zero_grad()
             value.backward(inputs=inputs)
             nn.utils.clip_grad_norm_(net.parameters(), self.cfg.grad_clip)

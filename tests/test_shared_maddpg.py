@@ -22,6 +22,13 @@ def fleet(n: int, batch: int = 16, seed: int = 0, live=None) -> FleetBatch:
                       next_live=live, disc=torch.full((batch,), 0.9))
 
 
+def pool(critic: PooledCritic, b: FleetBatch, pos=None) -> torch.Tensor:
+    """The pooled embedding of every slot of ``b`` (live or not) [B, N, embed], with positions ``pos``."""
+    pos = b.pos if pos is None else pos
+    every = torch.ones_like(b.live).nonzero(as_tuple=True)
+    return critic.pooled(b.obs, b.act, critic.neighbours(pos, b.live, every)).reshape(*b.live.shape, -1)
+
+
 def test_one_network_scores_any_fleet_size():
     torch.manual_seed(0)
     actor, critic = SharedActor(OD, AD, 64), PooledCritic(OD, AD, 64, 32)
@@ -113,7 +120,7 @@ def test_pooling_the_k_nearest_is_pooling_all_when_k_covers_the_fleet_and_ignore
         PooledCritic(OD, AD, 64, 32, pool_neighbours=2)
     k5.load_state_dict(whole.state_dict())
     k2.load_state_dict(whole.state_dict())
-    assert torch.equal(whole.pooled(b.obs, b.act, b.pos, b.live), k5.pooled(b.obs, b.act, b.pos, b.live))
+    assert torch.equal(pool(whole, b), pool(k5, b))
     # with K = 2, moving each buoy's third-nearest and further ones away changes nothing for it
     d = (b.pos[:, :, None] - b.pos[:, None]).square().sum(-1)
     d = d.masked_fill(torch.eye(6, dtype=torch.bool) | ~b.live[:, None, :], float("inf"))
@@ -123,10 +130,9 @@ def test_pooling_the_k_nearest_is_pooling_all_when_k_covers_the_fleet_and_ignore
         for j in range(1, 6):
             if j not in near[s]:
                 moved[s, j] += 100.0
-    before, after = k2.pooled(b.obs, b.act, b.pos, b.live), k2.pooled(b.obs, b.act, moved, b.live)
+    before, after = pool(k2, b), pool(k2, b, moved)
     assert torch.allclose(before[:, i], after[:, i], atol=1e-6)
-    assert not torch.allclose(whole.pooled(b.obs, b.act, b.pos, b.live)[:, i],
-                              whole.pooled(b.obs, b.act, moved, b.live)[:, i])
+    assert not torch.allclose(pool(whole, b)[:, i], pool(whole, b, moved)[:, i])
 
 
 def test_pooling_the_k_nearest_averages_the_embeddings_of_exactly_those_buoys():
@@ -137,7 +143,7 @@ def test_pooling_the_k_nearest_averages_the_embeddings_of_exactly_those_buoys():
     live[2, 2:] = False  # two live buoys: each has one live other, fewer than K
     b = fleet(6, batch=3, live=live)
     critic = PooledCritic(OD, AD, 64, 32, pool_neighbours=3)
-    pooled = critic.pooled(b.obs, b.act, b.pos, b.live)
+    pooled = pool(critic, b)
     for s in range(3):
         for i in range(6):
             others = [j for j in range(6) if j != i and b.live[s, j]]
@@ -145,3 +151,28 @@ def test_pooling_the_k_nearest_averages_the_embeddings_of_exactly_those_buoys():
             near = others[:3]
             x = torch.stack([torch.cat([b.obs[s, j], b.act[s, j], b.pos[s, j] - b.pos[s, i]]) for j in near])
             assert torch.allclose(pooled[s, i], critic.phi(x).mean(dim=0), atol=1e-5)
+
+
+def test_an_update_is_the_same_with_or_without_padding():
+    """Fleets of 4 to 9 padded to 9 and the same fleets padded to 14 (five more empty slots each): one update
+    leaves the same weights, to float rounding; the padding is neither computed nor counted."""
+    g = torch.Generator().manual_seed(5)
+    live = torch.arange(9)[None] < torch.randint(4, 10, (32,), generator=g)[:, None]
+    b = fleet(9, batch=32, seed=5, live=live)
+    b.next_live = live.clone()
+    b.next_live[::3, 0] = False  # some buoys lost before the bootstrap step
+
+    def padded(x, fill=0.0):
+        extra = torch.full((x.shape[0], 5, *x.shape[2:]), fill, dtype=x.dtype)
+        return torch.cat([x, extra], dim=1)
+
+    wide = FleetBatch(obs=padded(b.obs, 7.0), act=padded(b.act, 0.5), rew=padded(b.rew, 100.0),
+                      next_obs=padded(b.next_obs, 7.0), pos=padded(b.pos), next_pos=padded(b.next_pos),
+                      live=padded(b.live, False), next_live=padded(b.next_live, False), disc=b.disc)
+    cfg = SharedLearnerConfig(pool_neighbours=3)
+    a, c = SharedMADDPG(OD, AD, cfg, seed=1), SharedMADDPG(OD, AD, cfg, seed=1)
+    sa, sc = a.update(b), c.update(wide)
+    assert abs(sa["critic_loss"] - sc["critic_loss"]) < 1e-5
+    for net in ("actor", "critic", "actor_target", "critic_target"):
+        for p, q in zip(getattr(a, net).parameters(), getattr(c, net).parameters()):
+            torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-6)

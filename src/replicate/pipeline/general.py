@@ -27,7 +27,8 @@ from ..lakes import held_out, lake_region
 from ..regions import Region, make_region
 from ..train import training_process
 
-GENERAL_VERSION = 1  # raised when the general training's arithmetic changes: older runs are trained again
+GENERAL_VERSION = 2  # raised when the general training's arithmetic changes: older runs are trained again
+# 2: the update runs on the buoys in service only and applies φ's last layer to the pooled mean (float rounding)
 KEPT_POLICY = "general.pt"  # the best-validated seed's policy, the one a user deploys
 SEED_POLICY = "policy.pt"  # each seed's exported policy, in its run folder
 
