@@ -380,10 +380,10 @@ class CompiledSharedMADDPG(SharedMADDPG):
         self.critic_loss = torch.compile(self._critic_loss, dynamic=False)
         self.actor_loss = torch.compile(self._actor_loss, dynamic=False)
 
-    def _critic_loss(self, b: FleetBatch, rows, now, then):
+    def _critic_loss(self, b: FleetBatch, rows, now, then, next_rows):
         with torch.no_grad():
             next_act = b.act.new_zeros(b.act.shape)
-            next_act[b.next_live] = self.actor_target(b.next_obs[b.next_live])[0]
+            next_act[next_rows] = self.actor_target(b.next_obs[next_rows])[0]
             pool = self.critic_target.pooled(b.next_obs, next_act, then)
             q_next = self.critic_target.score(b.next_obs[rows], next_act[rows], pool) * b.next_live[rows]
             y = b.rew[rows] + b.disc[rows[0]] * q_next
@@ -397,10 +397,10 @@ class CompiledSharedMADDPG(SharedMADDPG):
         return -self.critic.score(b.obs[rows], mu, pool).mean() + self.cfg.actor_reg * (pre**2).mean()
 
     def update(self, b: FleetBatch) -> None:
-        rows = live_rows(b.live)
+        rows, next_rows = live_rows(b.live), live_rows(b.next_live)
         now, then = self.critic.neighbours(b.pos, b.live, rows), self.critic.neighbours(b.next_pos, b.next_live, rows)
         for loss, args, opt, net, inputs in (
-                (self.critic_loss, (b, rows, now, then), self.critic_opt, self.critic, None),
+                (self.critic_loss, (b, rows, now, then, next_rows), self.critic_opt, self.critic, None),
                 (self.actor_loss, (b, rows, now), self.actor_opt, self.actor, list(self.actor.parameters()))):
             value = loss(*args)
             opt.zero_grad()

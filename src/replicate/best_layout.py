@@ -16,7 +16,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
-TIE = 1e-9  # m²: gains closer than this are equal (the same water scored through other overlays)
+TIE = 1e-9  # gains (m²) or coverages closer than this are equal: the same water scored through other overlays
 # the candidate grid's origin, in grid spacings: the search ends in another local optimum from each. On 6 suite
 # lakes at N = 9 and 20 the four differ by <= 0.0015 in coverage, on one lake by 0.014 (0.922 to 0.935)
 GRID_OFFSETS = ((0.0, 0.0), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25))

@@ -139,9 +139,9 @@ def check_general(g: GeneralConfig, regions: dict) -> None:
     for start in su.starts:
         if start not in ("corner", "random"):
             raise ConfigError(f"general.suite.starts: 'corner' or 'random', got {start!r}")
-    if "none" not in su.events or not set(su.events) <= set(EVENTS):  # the events are read against still water
-        raise ConfigError(f"general.suite.events: 'none' (still water) and any of {list(EVENTS[1:])}, got "
-                          f"{list(su.events)}")
+    if "none" not in su.events or not set(su.events) <= set(EVENTS) or len(set(su.events)) < len(su.events):
+        raise ConfigError(f"general.suite.events: 'none' (still water, which the events are read against) and any "
+                          f"of {list(EVENTS[1:])}, each once, got {list(su.events)}")
     within(su.lose_fraction, "general.suite.lose_fraction", 0, 0.5, open_lo=True)  # a fleet keeps most of itself
     within(su.current, "general.suite.current", 0)
     within(su.episodes, "general.suite.episodes", 1)

@@ -5,7 +5,7 @@ Two ways to get the policy:
 
 * ``general`` (default): the general policy (``policies/general.pt``, installed with the package), zero-shot in
   seconds, or fine-tuned on this lake for ``finetune`` episodes (``cover_general``); compared with tuned naive
-  swarming, tuned Lloyd, geodesic Lloyd and the best layout under the same physics (the shore as a wall).
+  swarming, tuned Lloyd and the best layout under the same physics (the shore as a wall).
 * ``cr``: per-region CR-MARL trained from scratch with a configuration of params.yaml (``cover``); compared with
   the converged Lloyd layout.
 

@@ -357,8 +357,8 @@ def per_region_cr(params, summary: dict, c: dict) -> str:
 
 
 def general_rows(params, cells: list[dict], summary: dict) -> list[str]:
-    """Markdown rows: every cell of the named regions, then the held-out lakes pooled per fleet and start (mean
-    over lakes, and the worst lake's ratio to lloyd_tuned). The general policy's column is the kept seed's (its
+    """Markdown rows: every cell of the named regions, then the held-out lakes pooled per fleet, start and event
+    (mean over lakes, and the worst lake's ratio to lloyd_tuned). The general policy's column is the kept seed's (its
     interval over episodes); the next gives the range over every seed (over seeds of the mean over lakes); then
     the per-region `tuned` CR-MARL where ``summary`` has it (``per_region_cr``)."""
     def row(label, n, start, event, general, seeds, cr, rivals, ratio):
@@ -409,15 +409,17 @@ def general_section(params, general: dict, summary: dict | None = None) -> list[
     cells, t = general["cells"], params.report.general
     su = params.general.suite
     seeds = ", ".join(general.get("seeds", [])) or "one"
+    said = {"none": "still water", "lose": f"{su.lose_fraction:.0%} of the fleet lost at T/2 (coverage of the rest "
+            "at T)", "current": f"a uniform drift of {su.current} m/s"}
     lines = ["## One policy for every lake", "",
              f"The general policy (`{general['policy']}`, one network trained once on the training worlds of "
              "`general`, local sensors only), zero-shot on lakes it never trained on, behind the shore wall: the "
              f"square, the rectangle and Bedok at N ∈ {list(su.named_fleets)} (each at the paper's density), "
              f"{su.held_out} held-out generated lakes at N ∈ {list(su.lake_fleets)} (each at its own density); "
-             "starts in the corner patch or scattered; events: none, "
-             f"{su.lose_fraction:.0%} of the fleet lost at T/2 (coverage of the rest at T), a uniform drift of "
-             f"{su.current} m/s. {su.episodes} episodes per cell from the evaluation seed. The general policy's "
-             "column is the deployed policy (the best-validated seed) with its interval over episodes; "
+             "starts in the corner patch or scattered; on every lake and fleet: "
+             f"{', '.join(said[e] for e in su.events)}. {su.episodes} episodes per cell from the evaluation seed. "
+             "The general policy's column is the deployed policy (the best-validated seed) with its interval over "
+             "episodes; "
              f"\"every seed\" is the range over the trained seeds ({seeds}), and a cell meets a bar only when "
              "every seed does. naive_tuned and lloyd_tuned carry the gains tuned once on the "
              "training worlds (`tuning.general_baselines`), geodesic Lloyd Lloyd's; the best layout is the "
