@@ -67,7 +67,7 @@ def write(tmp_path, mutate):
         (lambda r: r["ablation"].update(base="best"), "ablation: unknown config 'best'"),
         (lambda r: r["ablation"].update(regions=["atlantis"]), "unknown region"),
         (lambda r: r["regions"]["square"].update(episode_length=0), "regions.square.episode_length must be at least 1"),
-        (lambda r: r["general"]["suite"].update(events=["lose"]), r"general.suite.events: 'none' \(still water\)"),
+        (lambda r: r["general"]["suite"].update(events=["lose"]), r"general.suite.events: 'none' \(still water, which"),
         (lambda r: r["general"]["suite"].update(events=["none", "storm"]), "general.suite.events: 'none'"),
         (lambda r: r["general"]["suite"].update(events=["none", "lose", "lose"]), "each once"),
     ],
