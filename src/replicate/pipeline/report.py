@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import artifacts, stats
-from ..config import Cell, ReportConfig, run_config
+from ..config import EVENTS, Cell, ReportConfig, run_config
 
 REPRODUCED, PARTLY, NOT = "reproduced", "partly", "not reproduced"
 
@@ -376,7 +376,7 @@ def general_rows(params, cells: list[dict], summary: dict) -> list[str]:
     for c in cells:
         if c["region"] not in params.regions:
             lakes.setdefault((c["n_agents"], c["start"], c["event"]), []).append(c)
-    for (n, start, event), group in sorted(lakes.items()):
+    for (n, start, event), group in sorted(lakes.items(), key=lambda kv: (*kv[0][:2], EVENTS.index(kv[0][2]))):
         general = [c["coverage"]["mean"] for c in group]
         per_seed = [seed_coverages(c) for c in group]
         seeds = [sum(p[s] for p in per_seed) / len(group) for s in per_seed[0]]
