@@ -75,9 +75,8 @@ def local_search(region: Polygon, xy: np.ndarray, step: float, radius: float, ed
     xy = xy.copy()
     compass = np.array([[np.cos(a), np.sin(a)] for a in np.arange(8) * np.pi / 4])
     while step >= tolerance:
-        improved = False
+        improved, reach = False, 2 * radius + step  # a move of ``step`` touches polygons within reach
         for i in range(len(xy)):
-            reach = 2 * radius + step
             others = near(xy, xy[i], reach)
             others[i] = False
             rest = shapely.union_all(coverage_polygons(xy[others], radius, edges)) if others.any() else None

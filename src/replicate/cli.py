@@ -207,7 +207,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def evaluate_general(args: argparse.Namespace, params: Params) -> int:
     """``evaluate --policy``: a general policy on ``--region`` with its fleet, starts and events."""
-    from .evaluate import evaluate_policy
+    from .evaluate import evaluate_policy, lloyd_name
 
     if args.run is not None or args.baseline is not None or args.config != "paper":
         raise ConfigError("--policy evaluates a general policy; give no run folder, --baseline or --config with it")
@@ -240,7 +240,7 @@ def evaluate_general(args: argparse.Namespace, params: Params) -> int:
                              geodesic=args.geodesic)
     artifacts.write_json(out, result)
     cov, rivals = result["coverage"], result["baselines"]
-    lloyd = next(rivals[k] for k in ("lloyd_tuned", "lloyd") if k in rivals)
+    lloyd = rivals[lloyd_name(rivals)]
 
     def ratio(key):
         return "n/a" if result[key] is None else f"{result[key]:.3f}"

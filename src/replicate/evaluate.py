@@ -240,6 +240,12 @@ def general_baselines(params: Params, gains: dict | None,
     return rivals, how
 
 
+def lloyd_name(rivals: dict) -> str:
+    """The Lloyd a general policy is read against among its baselines ``rivals`` (names as keys):
+    ``lloyd_tuned`` when the policy carries tuned gains, else the hand-set ``lloyd``."""
+    return "lloyd_tuned" if "lloyd_tuned" in rivals else "lloyd"
+
+
 def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
                     lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False,
                     seeds: dict[str, str | Path] | None = None, geodesic: bool = True) -> dict:
@@ -288,7 +294,7 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
         out["baselines"][name] = {"coverage": coverage(episodes(policy, None)[1]), "gains": how}
     best = best_coverage(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges)
     out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
-    lloyd = out["baselines"]["lloyd_tuned" if "lloyd_tuned" in rivals else "lloyd"]["coverage"]["mean"]
+    lloyd = out["baselines"][lloyd_name(rivals)]["coverage"]["mean"]
     out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None
     out["ratio_to_best"] = out["coverage"]["mean"] / best if best > 0 else None
     return out

@@ -124,7 +124,7 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
     Evaluated from the corner patch with its baselines (``evaluate.evaluate_policy``); ``out/spread.png`` and
     ``out/summary.json``."""
     from .config import SensorsConfig
-    from .evaluate import evaluate_policy, general_episode, general_policy
+    from .evaluate import evaluate_policy, general_episode, general_policy, lloyd_name
     from .export import export_general
     from .general_train import GeneralTrainer
     from .worlds import horizon
@@ -151,7 +151,7 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
     result = evaluate_policy(policy, region, params, n, "corner", progress=progress, geodesic=False)
     c = params.coverage
     trace, _ = general_episode(policy, region, params, n, "corner")
-    lloyd = "lloyd_tuned" if "lloyd_tuned" in result["baselines"] else "lloyd"  # hand-set without tuned gains
+    lloyd = lloyd_name(result["baselines"])
     lloyd_coverage = result["baselines"][lloyd]["coverage"]
     plots.spread(region.polygon, start_patch(region.polygon, params.world.start_patch), trace[-1], c.radius,
                  c.edges, out / "spread.png", f"general policy{' fine-tuned' if finetune else ''} on {region.name}: "

@@ -135,7 +135,7 @@ def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[P
     (``anim_general_lose.gif``) and through a drift (``anim_general_current.gif``), on Bedok with the paper's
     fleet."""
     from ..animate import animate_trace
-    from ..evaluate import general_episode
+    from ..evaluate import general_episode, lloyd_name
     from .general import at_density, suite_lakes, suite_lose
 
     su, c = params.general.suite, params.coverage
@@ -150,7 +150,7 @@ def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[P
         trace, _ = general_episode(policy, region, params, n, start)
         cell = suite[(name, n, start, "none")]
         cover = coverage_fraction_exact(region.polygon, trace[-1][None], c.radius, c.edges)[0]
-        lloyd = "lloyd_tuned" if "lloyd_tuned" in cell["baselines"] else "lloyd"  # a policy without tuned gains
+        lloyd = lloyd_name(cell["baselines"])
         rival = {k: cell["baselines"][k]["coverage"]["mean"] for k in (lloyd, "best_layout")}
         panels.append({"region": region.polygon, "trace": trace, "title": (
             f"{name}\nN = {n}: coverage {cover:.2f} in this episode\nmean of {cell['coverage']['n']}: "
