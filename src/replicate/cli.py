@@ -513,7 +513,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         for key, b in result["baselines"].items():
             print(f"{key}: tuning coverage {b['tuning_coverage']:.3f} with {b['gains']} ({b['trials']} trials)")
     elif args.what == "general-baselines":
-        result = tune_general_baselines(params, executor)
+        result = tune_general_baselines(params, executor, params.stages.get("pipeline", {}).get("workers", 1))
         out = Path(args.out or params.tuning.general_baselines.result)
         artifacts.write_json(out, result)
         for key, b in result.items():

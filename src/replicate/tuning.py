@@ -225,23 +225,34 @@ def general_baseline_score(kind: str, params: Params, gains: dict) -> tuple[floa
     return general_baseline_coverage(kind, params, gains), time.process_time() - t0
 
 
-def tune_general_baselines(params: Params, executor: str = "local") -> dict:
+def tune_general_baselines(params: Params, executor: str = "local", workers: int = 1) -> dict:
     """Naive swarming's and Lloyd's studies on the general policy's training worlds →
-    ``{"naive_tuned": {gains, tuning_coverage, budget}, "lloyd_tuned": {...}}``."""
+    ``{"naive_tuned": {gains, tuning_coverage, budget}, "lloyd_tuned": {...}}``.
+
+    Locally the two studies run side by side in ``workers`` processes, each one's trials in order (the same
+    trials as one process running both); with Ray each study spreads its trials over the cluster in turn."""
+    kinds = ("naive", "lloyd")
+    if executor == "local":
+        results = map_jobs(functools.partial(general_study, params), kinds, "local", workers)
+    else:
+        results = [general_study(params, kind, executor) for kind in kinds]
+    return {f"{kind}_tuned": result for kind, result in zip(kinds, results)}
+
+
+def general_study(params: Params, kind: str, executor: str = "local") -> dict:
+    """One baseline's study of ``tune_general_baselines``, completed (or read back) → its result."""
     from .worlds import baseline_worlds
 
     tc, gb = params.tuning, params.tuning.general_baselines
     worlds = [(region_key(region.polygon), n) for region, n in baseline_worlds(params, params.general)]
-    out = {}
-    for kind, trials in (("naive", gb.naive_trials), ("lloyd", gb.lloyd_trials)):
-        search = getattr(tc.baselines, kind)
-        name = study_name(f"general-{kind}", search.space, tc.starts_seed, gb.starts, tc.sampler_seed, worlds,
-                          params.world, params.coverage, params.general.episode_length)
-        study = open_study(gb.storage, name, tc.sampler_seed)
-        run_trials(study, functools.partial(general_baseline_score, kind, params), search.space, trials, executor)
-        out[f"{kind}_tuned"] = {"gains": dict(study.best_params), "tuning_coverage": study.best_value,
-                                **budget(study), "storage": gb.storage}
-    return out
+    search = getattr(tc.baselines, kind)
+    name = study_name(f"general-{kind}", search.space, tc.starts_seed, gb.starts, tc.sampler_seed, worlds,
+                      params.world, params.coverage, params.general.episode_length)
+    study = open_study(gb.storage, name, tc.sampler_seed)
+    trials = gb.naive_trials if kind == "naive" else gb.lloyd_trials
+    run_trials(study, functools.partial(general_baseline_score, kind, params), search.space, trials, executor)
+    return {"gains": dict(study.best_params), "tuning_coverage": study.best_value, **budget(study),
+            "storage": gb.storage}
 
 
 # ---- a method's training values ------------------------------------------------------------------------
