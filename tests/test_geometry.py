@@ -102,13 +102,42 @@ def test_raster_kernel_counts_every_shared_cell(name, regions, geometries):
     xy = random_configs(region, np.random.default_rng(4), n_env=24)
     geo = geometries[name]
     area = geo.cover_terms(xy).area
-    union, marginal = geo.union_area(xy, area, marginal=True)
     excess, shared = raster_counts(geo, xy, area)
+    assert_kernel_counts(geo, xy, area, excess, shared)
+    assert excess.sum() > 0 and (shared == 0).any()  # both overlapping and lone stamps were drawn
+
+
+def assert_kernel_counts(geo, xy, area, excess, shared):
+    """``union_area``, plain and marginal, equals the brute-force counts exactly."""
     h2 = geo.raster_h**2
+    union, marginal = geo.union_area(xy, area, marginal=True)
     np.testing.assert_allclose(union, area.sum(axis=1) - excess * h2, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(geo.union_area(xy, area), union, rtol=0, atol=0)  # the plain path's own sweep
     expected = np.where(shared > 0, np.maximum(area - shared * h2, 0.0), area)
     np.testing.assert_allclose(marginal, expected, rtol=0, atol=1e-12)
-    assert excess.sum() > 0 and (shared == 0).any()  # both overlapping and lone stamps were drawn
+
+
+@pytest.mark.parametrize("edges, spacing", [(30, 0.25), (4, 0.1), (3, 0.25), (6, 0.05)])
+def test_raster_kernel_counts_on_coarse_grids_few_edges_and_ties(edges, spacing, regions):
+    """The kernel on other coverage polygons and rasters down to the coarsest allowed (R/2), with buoys on the
+    grid's lines (ties between runs' ends), on the same point, and exactly 2R apart."""
+    region, radius = regions["bedok"].polygon, 0.5
+    geo = CoverageGeometry(region, radius, edges, 0.05, spacing)
+    rng = np.random.default_rng(5)
+    xy = random_configs(region, rng, n_env=16)
+    snapped = geo.raster_origin + np.round((xy - geo.raster_origin) / spacing) * spacing  # on the grid's lines
+    twins = xy.copy()
+    twins[:, 1] = twins[:, 0]  # two buoys on one point
+    apart = xy.copy()
+    apart[:, 1] = apart[:, 0] + [2 * radius, 0.0]  # exactly 2R: not "close"
+    xy = np.concatenate([xy, snapped, twins, apart])
+    area = geo.cover_terms(xy).area
+    assert_kernel_counts(geo, xy, area, *raster_counts(geo, xy, area))
+
+
+def test_coverage_geometry_refuses_a_raster_coarser_than_half_the_radius(regions):
+    with pytest.raises(ValueError, match="R/2"):
+        CoverageGeometry(regions["square"].polygon, 0.5, 30, 0.01, 0.3)
 
 
 def test_union_is_exact_without_overlaps(regions, geometries, params):

@@ -114,8 +114,9 @@ class CoverageGeometry:
 
     def __init__(self, region: Polygon, radius: float, edges: int, table_spacing: float, raster_spacing: float,
                  closed: bool = False):
-        if table_spacing <= 0 or raster_spacing <= 0:
-            raise ValueError("table_spacing and raster_spacing must be positive")
+        if not (0 < table_spacing <= radius / 2 and 0 < raster_spacing <= radius / 2):
+            raise ValueError(f"table_spacing and raster_spacing must lie in (0, R/2] = (0, {radius / 2:g}] m: a "
+                             "coarser grid does not resolve the coverage polygon")
         self.region = region
         self.radius = radius
         self.edges = edges
@@ -205,6 +206,10 @@ class CoverageGeometry:
                     self.stencil_lo[k, col], self.stencil_hi[k, col] = rows[0], rows[-1]
         # each stencil's bounding box relative to the agent's cell, [subpixel², 4]: dx0, dx1, dy0, dy1 (inclusive)
         filled = self.stencil_lo <= self.stencil_hi
+        columns = filled.sum(axis=1)  # the raster kernel needs a run in every column of a stencil's box
+        first_column = np.argmax(filled, axis=1)
+        assert (columns > 0).all() and all(filled[k, c0:c0 + n].all()
+                                           for k, (c0, n) in enumerate(zip(first_column, columns)))
         lo, hi = self.stencil_lo, self.stencil_hi
         self.stencil_box = np.stack([
             np.where(filled, d, w + 1).min(axis=1), np.where(filled, d, -w - 1).max(axis=1),
@@ -269,16 +274,17 @@ def _overlap_runs(env, cell, k, box, lo, hi, reach, prefix, marginal):  # pragma
 
     A stamp is agent ``cell`` [M, 2]'s stencil ``k`` [M]: rows ``lo[k, c] .. hi[k, c]`` of column c, inside its
     bounding box ``box`` [M, 4] (x0, x1, y0, y1, inclusive, in cells); stamps of one environment are consecutive
-    (``env`` [M]). K is convex, so a stamp meets each column of its box in one run of rows, and the kernel works
-    on runs, not cells. It sweeps an environment's columns left to right with the stamps that meet the column
-    (they enter and leave at their boxes' sides), kept in order of their runs' first rows: from one column to
-    the next that order barely changes, so re-sorting it is about linear. ``prefix`` [nx, ny + 1] counts a
-    piece's cells in the region (row r: the column's region cells below row r).
+    (``env`` [M]). K is convex and a raster cell at most R/2 wide, so a stamp meets every column of its box in
+    exactly one run of rows (``_build_raster`` checks it), and the kernel works on runs, not cells. It sweeps an
+    environment's columns left to right with the stamps that meet the column (they enter and leave at their
+    boxes' sides), kept in order of their runs' first rows: from one column to the next that order barely
+    changes, so re-sorting it is about linear. ``prefix`` [nx, ny + 1] counts a piece's cells in the region
+    (row r: the column's region cells below row r).
 
-    Excess of a column = the runs' cells − their union's cells (the union merged from the runs in order). When
-    ``marginal``, a sweep over the runs' ends in row order (``_runs_alone``) keeps instead how many stamps cover
-    the current piece and the sum of their numbers (the stamp itself while only one does): a stamp's cells
-    covered twice or more are its cells less those it covers alone. Returns out [M, 2]."""
+    Excess of a column = the runs' region cells − their union's region cells (the union merged from the runs in
+    order). When ``marginal``, a sweep over the runs' ends in row order (``_runs_alone``) keeps instead how many
+    stamps cover the current piece and the sum of their numbers (the stamp itself while only one does): a
+    stamp's cells covered twice or more are its cells less those it covers alone. Returns out [M, 2]."""
     m = len(cell)
     out = np.zeros((m, 2))
     alone = np.zeros(m)  # cells a stamp covers by itself, in the columns it shares
@@ -307,7 +313,7 @@ def _overlap_runs(env, cell, k, box, lo, hi, reach, prefix, marginal):  # pragma
                 meeting[count] = entering[entered]
                 count += 1
                 entered += 1
-            if count < 2:  # one run: nothing shared in this column
+            if count < 2:  # fewer than two stamps: nothing shared in this column
                 continue
             for j in range(count):
                 i = meeting[j]
@@ -318,18 +324,18 @@ def _overlap_runs(env, cell, k, box, lo, hi, reach, prefix, marginal):  # pragma
             if marginal:
                 excess += _runs_alone(x, meeting, count, first, end, prefix, at, step, owner, out, alone)
                 continue
-            own, union = 0, 0
+            cells, union = 0, 0
             bottom, top = first[meeting[0]], end[meeting[0]]  # the merged run being built
             for j in range(count):
                 i = meeting[j]
-                own += prefix[x, end[i]] - prefix[x, first[i]]
+                cells += prefix[x, end[i]] - prefix[x, first[i]]
                 if first[i] > top:
                     union += prefix[x, top] - prefix[x, bottom]
                     bottom, top = first[i], end[i]
                 elif end[i] > top:
                     top = end[i]
             union += prefix[x, top] - prefix[x, bottom]  # the last merged run
-            excess += own - union
+            excess += cells - union
         out[start, 0] = excess
         start = stop
     if marginal:
@@ -341,8 +347,9 @@ def _overlap_runs(env, cell, k, box, lo, hi, reach, prefix, marginal):  # pragma
 def _runs_alone(x, meeting, count, first, end, prefix, at, step, owner, out, alone):  # pragma: no cover
     """One column of ``_overlap_runs``'s marginal sweep over the runs of ``meeting`` [count]: their ends, in row
     order in ``at``, ``step`` (+1 a start, −1 an end) and ``owner`` (the stamp), mark the pieces between them; each
-    run adds its region cells to ``out[:, 1]`` and the cells it covers alone to ``alone``. Runs are half-open, so
-    at one row an end comes before a start. → the column's excess (a piece covered c ≥ 1 times: c − 1 a cell)."""
+    run adds its region cells to ``out[:, 1]`` and the cells it covers alone to ``alone``. Runs are half-open
+    [first, end): the pieces between consecutive events, empty ones skipped, are what the counts hold for.
+    → the column's excess (a piece covered c ≥ 1 times: c − 1 a cell)."""
     events = 0
     for j in range(count):
         i = meeting[j]
