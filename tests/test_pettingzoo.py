@@ -164,3 +164,12 @@ def test_starts_losses_and_a_current_pass_the_api_and_seed_tests():
         assert all(drifting.observation_space(a).contains(o) for a, o in obs.items())
     with pytest.raises(ValueError, match="start must be one of"):
         CoverageParallelEnv("square", start="middle")
+
+
+def test_a_small_coverage_radius_is_resolved_as_finely_as_the_papers(params):
+    from replicate.pettingzoo_env import scaled_coverage
+
+    small = scaled_coverage(params.coverage, 0.03)
+    assert small.raster_spacing <= small.radius / 2 and small.table_spacing <= small.radius / 2
+    assert small.radius / small.raster_spacing == pytest.approx(params.coverage.radius / params.coverage.raster_spacing)
+    assert scaled_coverage(params.coverage, 0.8).raster_spacing == params.coverage.raster_spacing

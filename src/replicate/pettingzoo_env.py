@@ -18,7 +18,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from .config import Params, SensorsConfig, load_params, packaged, region_world
+from .config import CoverageConfig, Params, SensorsConfig, load_params, packaged, region_world
 from .currents import Current
 from .env import STARTS, CoverageEnv
 from .regions import Region, make_region
@@ -29,6 +29,14 @@ class Unset:
 
 
 UNSET = Unset()
+
+
+def scaled_coverage(coverage: CoverageConfig, radius: float) -> CoverageConfig:
+    """``coverage`` with coverage radius ``radius``; below the configured radius its lookup grids shrink with it
+    (as many cells per radius), so that a small radius is resolved as finely as the paper's."""
+    shrink = min(1.0, radius / coverage.radius)
+    return dataclasses.replace(coverage, radius=radius, table_spacing=coverage.table_spacing * shrink,
+                               raster_spacing=coverage.raster_spacing * shrink)
 
 
 class CoverageParallelEnv(ParallelEnv):
@@ -83,7 +91,7 @@ class CoverageParallelEnv(ParallelEnv):
             world = dataclasses.replace(world, n_agents=int(n_agents))
         if episode_length is not None:
             world = dataclasses.replace(world, episode_length=int(episode_length))
-        coverage = params.coverage if radius is None else dataclasses.replace(params.coverage, radius=float(radius))
+        coverage = params.coverage if radius is None else scaled_coverage(params.coverage, float(radius))
         if isinstance(region, str):
             region = make_region(region, params.regions[region], world.region_area)
         fence = geofence if geofence is not UNSET else (algo.geofence if algo is not None else None)
