@@ -57,8 +57,9 @@ def study_name(prefix: str, *searched) -> str:
     return f"{prefix}-{digest[:10]}"
 
 
-def open_study(storage: str, name: str, sampler_seed: int):
-    """The study ``name`` in ``storage`` (created if new), maximising, with a seeded TPE sampler."""
+def open_storage(storage: str):
+    """The Optuna storage at the SQLAlchemy URL ``storage``, its tables created if new: open it once before several
+    processes share a new file, or they race to create the same tables."""
     import optuna
 
     if storage.startswith("sqlite:///"):
@@ -68,7 +69,14 @@ def open_study(storage: str, name: str, sampler_seed: int):
     # period, so a resumed study does not wait for it, while the live trials of other workers go on
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-        rdb = optuna.storages.RDBStorage(storage, heartbeat_interval=60, grace_period=180)
+        return optuna.storages.RDBStorage(storage, heartbeat_interval=60, grace_period=180)
+
+
+def open_study(storage: str, name: str, sampler_seed: int):
+    """The study ``name`` in ``storage`` (created if new), maximising, with a seeded TPE sampler."""
+    import optuna
+
+    rdb = open_storage(storage)
     study = optuna.create_study(study_name=name, storage=rdb, direction="maximize", load_if_exists=True)
     # the sampler's generator continues from the trials already there (a resumed study would otherwise draw its
     # first trials again): an uninterrupted study is the same on every machine, a resumed one has no repeats
@@ -233,6 +241,7 @@ def tune_general_baselines(params: Params, executor: str = "local", workers: int
     trials as one process running both); with Ray each study spreads its trials over the cluster in turn."""
     kinds = ("naive", "lloyd")
     if executor == "local":
+        open_storage(params.tuning.general_baselines.storage)  # its tables, before two processes open it
         results = map_jobs(functools.partial(general_study, params), kinds, "local", workers)
     else:
         results = [general_study(params, kind, executor) for kind in kinds]
