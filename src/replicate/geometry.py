@@ -206,15 +206,13 @@ class CoverageGeometry:
                     self.stencil_lo[k, col], self.stencil_hi[k, col] = rows[0], rows[-1]
         # each stencil's bounding box relative to the agent's cell, [subpixel², 4]: dx0, dx1, dy0, dy1 (inclusive)
         filled = self.stencil_lo <= self.stencil_hi
-        columns = filled.sum(axis=1)  # the raster kernel needs a run in every column of a stencil's box
-        first_column = np.argmax(filled, axis=1)
-        assert (columns > 0).all() and all(filled[k, c0:c0 + n].all()
-                                           for k, (c0, n) in enumerate(zip(first_column, columns)))
         lo, hi = self.stencil_lo, self.stencil_hi
         self.stencil_box = np.stack([
             np.where(filled, d, w + 1).min(axis=1), np.where(filled, d, -w - 1).max(axis=1),
             np.where(filled, lo, w + 1).min(axis=1), np.where(filled, hi, -w - 1).max(axis=1),
         ], axis=1)
+        # the raster kernel needs a run in every column of a stencil's box: as many filled columns as box columns
+        assert (filled.sum(axis=1) == self.stencil_box[:, 1] - self.stencil_box[:, 0] + 1).all()  # empty: never equal
         # per column, how many of its first r cells are in the region: [nx, ny + 1]
         self.mask_prefix = np.zeros((self.nx, self.ny + 1), np.int64)
         self.mask_prefix[:, 1:] = np.cumsum(self.mask.reshape(self.nx, self.ny), axis=1)
@@ -225,7 +223,7 @@ class CoverageGeometry:
         With ``marginal=True`` also returns each agent's own contribution
         A(∪_b Cov(b) ∩ Reg) − A(∪_{b≠a} Cov(b) ∩ Reg), [E, N] (the difference reward of SPEC §6).
         """
-        n_env, n = area.shape
+        n_env = area.shape[0]
         total = area.sum(axis=1)
         contribution = area.copy()
         # Only agents closer than 2R to another can overlap (the circumradius bounds K).
