@@ -9,7 +9,15 @@ import re
 
 from replicate import stats
 from replicate.pipeline.evaluation import split_ablation
-from replicate.pipeline.report import claims, comparisons, sensitivity, span, targets, write_report
+from replicate.pipeline.report import (
+    arithmetic_line,
+    claims,
+    comparisons,
+    sensitivity,
+    span,
+    targets,
+    write_report,
+)
 
 from .conftest import ROOT
 
@@ -200,3 +208,12 @@ def test_the_general_policys_bars_are_counted_per_cell(params):
     assert "| square | 9 | corner | none | 0.770 [0.760, 0.780] | 0.700-0.770 | 0.740 [0.730, 0.750] |" in text
     assert "| square | 9 | corner | current | 0.700 [0.690, 0.710] | 0.620-0.700 | — |" in text
     assert "| 2 held-out lakes (mean) | 9 | corner | none | 0.630 (0.600-0.660) |" in text
+
+
+def test_the_report_counts_the_arithmetic_of_its_runs():
+    """One fingerprint: every run reproducible by the same code, libraries and CPU. Several, or runs that predate
+    the record: the report names each kind and how many runs it trained."""
+    same = arithmetic_line([{"arithmetic": "f518c001171e43a2"}] * 3)
+    assert "all 3 runs were trained by the same arithmetic, fingerprint `f518c001171e43a2`" in same
+    mixed = arithmetic_line([{"arithmetic": "aaaa"}, {"arithmetic": "aaaa"}, {"arithmetic": "bbbb"}, {}])
+    assert "3 fingerprints" in mixed and "`aaaa` (2 runs), `bbbb` (1 run), `not recorded` (1 run)" in mixed

@@ -18,7 +18,7 @@ import pytest
 import shapely
 import torch
 
-from replicate import baselines, evaluate, regression
+from replicate import arithmetic, baselines, evaluate, maddpg, regression
 from replicate.artifacts import CheckpointError, read_text, write_csv
 from replicate.config import load_params, run_config
 from replicate.maddpg import MADDPG
@@ -116,6 +116,7 @@ def test_run_writes_curve_and_actors_and_drops_its_checkpoint(params, regions, t
         assert (tmp_path / "whole" / name).exists()
     assert not (tmp_path / "whole" / "checkpoint.pt").exists()
     assert summary["status"] == "finished" and summary["transitions"] == 20 * 50
+    assert summary["arithmetic"] == arithmetic.fingerprint()  # which numbers this code computes, recorded
     # one core's time is the process's CPU time: at most its wall time on one thread, and what the report judges
     assert 0 < summary["cpu_seconds"] <= summary["wall_seconds"] * 1.05
     assert core_seconds(summary) == summary["cpu_seconds"] and timed_by(summary) == "cpu"
@@ -529,3 +530,24 @@ def test_naive_interior_falls_back_to_the_middle_of_a_lake_too_shallow_for_a_cov
     middle = baselines.interior(narrow, eroded)
     assert not middle.is_empty and narrow.contains(middle)
     assert middle.exterior.distance(narrow.exterior) == pytest.approx(0.2)
+
+
+def test_the_arithmetic_fingerprint_names_the_numbers_not_the_code(monkeypatch):
+    """The fingerprint is the same on every call, and changes with a change of the computed numbers in either half
+    of training: the world's geometry (a coarser union raster) and the update (one matmul form rounded through
+    float64)."""
+    first = arithmetic.fingerprint()
+    arithmetic.fingerprint.cache_clear()
+    assert arithmetic.fingerprint() == first and len(first) == 16
+    changed = []
+    with monkeypatch.context() as m:
+        m.setattr(arithmetic, "COVERAGE", dataclasses.replace(arithmetic.COVERAGE, raster_spacing=0.02))
+        arithmetic.fingerprint.cache_clear()
+        changed.append(arithmetic.fingerprint())
+    with monkeypatch.context() as m:
+        m.setattr(maddpg, "stacked_matmul", lambda a, b: torch.bmm(a.double(), b.double()).float())
+        arithmetic.fingerprint.cache_clear()
+        changed.append(arithmetic.fingerprint())
+    arithmetic.fingerprint.cache_clear()
+    assert arithmetic.fingerprint() == first
+    assert first not in changed and len(set(changed)) == 2

@@ -20,6 +20,7 @@ import torch
 from tqdm.auto import tqdm
 
 from . import artifacts, run_stack
+from .arithmetic import fingerprint
 from .artifacts import CHECKPOINT_FORMAT, CheckpointError
 from .config import ConfigError, RunConfig, to_dict
 from .env import CoverageEnv
@@ -209,7 +210,8 @@ class Trainer:
         algo, cfg = self.rc.algo, self.rc.algo.maddpg
         n_env, runs = algo.n_envs, len(self.seeds)
         for k, out in enumerate(self.outs):
-            artifacts.write_json(out / "run.json", {**self.identity(k), "status": "running"})
+            artifacts.write_json(out / "run.json", {**self.identity(k), "arithmetic": fingerprint(),
+                                                    "status": "running"})
         bar = tqdm(total=self.episodes * runs, initial=len(self.rows[0]) * runs, disable=not self.progress,
                    unit="ep", smoothing=0.05)
         t0, c0 = time.perf_counter() - self.wall, time.process_time() - self.cpu
@@ -292,6 +294,7 @@ class Trainer:
         for k, out in enumerate(self.outs):
             summary = {
                 **self.identity(k),
+                "arithmetic": fingerprint(),  # the numbers this code computes here (arithmetic.py)
                 "status": "finished",
                 "wall_seconds": round(self.wall, 2),  # of the stack: every run of it took this long
                 "cpu_seconds": round(self.cpu, 2),  # of the stack's process

@@ -103,7 +103,8 @@ def train_matrix(params_path: str, configs, methods, regions, episodes: int, run
     wall = time.perf_counter() - t0
     keys = ("config", "method", "region", "seed", "wall_seconds", "final_coverage_last100")
     table = [{**{k: s[k] for k in keys}, "runs_in_process": s.get("runs_in_process", 1),
-              "core_seconds": round(core_seconds(s), 2), "timed_by": timed_by(s), "skipped": s.get("skipped", False)}
+              "core_seconds": round(core_seconds(s), 2), "timed_by": timed_by(s), "skipped": s.get("skipped", False),
+              "arithmetic": s.get("arithmetic")}
              for s in summaries]
     artifacts.write_json(Path(runs_dir) / "summary.json", {"wall_seconds": round(wall, 1), "runs": table})
     return wall, table

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -500,6 +501,20 @@ def missing_runs(params, summary: dict) -> list[str]:
     return out
 
 
+def arithmetic_line(runs: list[dict]) -> str:
+    """Which arithmetic (``replicate.arithmetic.fingerprint``) trained the runs: one fingerprint means every run is
+    reproducible bit for bit by the same code, libraries and CPU."""
+    counts = Counter(r.get("arithmetic") or "not recorded" for r in runs)
+    kinds = ", ".join(f"`{k}` ({n} run{'s' * (n != 1)})" for k, n in counts.most_common())
+    if len(counts) == 1 and "not recorded" not in counts:
+        return (f"Arithmetic: all {len(runs)} runs were trained by the same arithmetic, fingerprint "
+                f"`{next(iter(counts))}` (`replicate.arithmetic`: the numbers a fixed workload gives with this code, "
+                "libraries and CPU).")
+    return (f"Arithmetic: the runs carry {len(counts)} fingerprints, {kinds}: runs of different fingerprints were "
+            "trained by code, libraries or CPUs that round differently, and a rerun reproduces only its own kind "
+            "bit for bit (`replicate.arithmetic`).")
+
+
 def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict[str, str], figures: list[str],
                  out: str, stage_times: dict, general_path: str | None = None) -> str:
     summary = json.loads(Path(summary_path).read_text())
@@ -621,6 +636,8 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
                      f"process's CPU time, or of its wall time where it recorded only that); {stage}.")
     for stage, seconds in stage_times.items():
         lines.append(f"- `{stage}`: {seconds:.0f} s")
+    if timing:
+        lines += ["", arithmetic_line(timing["runs"])]
     lines += ["", "## Figures", ""]
     for path in figures:
         p = Path(path)
