@@ -5,11 +5,13 @@
    copies, optimiser), so run times measured on different machines and the room left for speed-ups can be read.
 1. Time per 1,000 episodes of the paper and tuned configurations (CR-MARL and SW-MARL, square), split into
    environment + geometry + acting (+ validation) and MADDPG updates, and the projected wall time of a full
-   10,000-episode run (the budget `tuned` was designed for: 180 s on one core), for a run alone and per run of the seeds
-   stacked in one process (as the pipeline trains them), with the ratio. From the stacked figures, the projected
-   `train` stage of the pipeline (every run of params.yaml's matrix and ablation, two processes at a time), and
-   the same with every update at its matmul floor: how far a 45-minute budget for the whole `dvc repro`
-   is on this machine.
+   10,000-episode run (the budget `tuned` was designed for: 180 s on one core): for a run alone, and per run of a
+   cell's seeds stacked in one process with a second such process beside it, as the pipeline's `train` stage
+   runs them (two processes share the caches and the memory bus: each runs slower than alone), with the ratio.
+   From the side-by-side figures, the projected `train` stage (every run of params.yaml's matrix and ablation),
+   the same with every update at its matmul floor, and the whole forced `dvc repro`: that `train` plus the other
+   stages' times as the last forced repro from scratch measured them (``benchmarks/from_scratch.json``, written by
+   ``--record-from-scratch``), against its 45-minute budget.
 2. One update of all 9 agents, per configuration: the batched MADDPG (hand-written gradients) against the same
    batched update through autograd (the update before its gradients were written out) and the per-agent loop
    (``maddpg_loop``), as ratios.
@@ -77,18 +79,75 @@ def training_split(params, square, config: str, method: str, episodes: int, runs
         tr.run()
     env_s = (tr.wall - tr.update_seconds) / episodes * 1000 / runs
     per_update = tr.update_seconds / max(tr.updates, 1) / runs
+    return env_s, per_update, *projected_run(params, config, method, env_s, per_update)
+
+
+def projected_run(params, config: str, method: str, env_s: float, per_update: float) -> tuple[float, float]:
+    """(update seconds per 1,000 episodes once learning runs, projected seconds of a 10,000-episode run) on the
+    square, from a run's environment seconds per 1,000 episodes and seconds per update."""
+    rc = run_config(params, config, method)
     cfg = rc.algo.maddpg
     total = params.train.episodes * rc.world.episode_length
     full_updates = (total - cfg.learning_starts) / cfg.update_every
     steady_updates_per_1000 = 1000 * rc.world.episode_length / cfg.update_every
-    full = env_s * params.train.episodes / 1000 + full_updates * per_update
-    return env_s, per_update, steady_updates_per_1000 * per_update, full
+    return steady_updates_per_1000 * per_update, env_s * params.train.episodes / 1000 + full_updates * per_update
+
+
+def split_probe(config: str, method: str, runs: int, episodes: int) -> None:
+    """One ``training_split`` in this fresh process (section 1's side-by-side figures), printed as JSON."""
+    import json
+
+    hold_freed_memory()
+    params = load_params("params.yaml")
+    square = make_region("square", params.regions["square"], params.world.region_area)
+    env_s, per_update, _, _ = training_split(params, square, config, method, episodes, runs=runs)
+    print(json.dumps({"env_s": env_s, "per_update": per_update}))
+
+
+def side_by_side_split(config: str, method: str, runs: int, episodes: int) -> tuple[float, float]:
+    """(env seconds per 1,000 episodes, seconds per update), per run, of ``runs`` seeds stacked in one process
+    while a second, identical process trains beside it: the mean of the two."""
+    import json
+    import subprocess
+
+    cmd = [sys.executable, __file__, "--split-probe", config, method, str(runs), "--episodes", str(episodes)]
+    procs = [subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True) for _ in range(2)]
+    outputs = [p.communicate()[0] for p in procs]
+    if any(p.returncode for p in procs):
+        raise RuntimeError(f"split probe failed: {' '.join(cmd)}")
+    probes = [json.loads(o.strip().splitlines()[-1]) for o in outputs]
+    return tuple(float(np.mean([pr[k] for pr in probes])) for k in ("env_s", "per_update"))
+
+
+FROM_SCRATCH = Path(__file__).with_name("from_scratch.json")  # the last measured forced `dvc repro`
+
+
+def record_from_scratch(clone: str) -> dict:
+    """Write ``FROM_SCRATCH`` from a clone where a forced ``dvc repro`` ran from scratch (``runs/``, ``policies/``
+    and the study files deleted first): each stage's wall seconds (its executed notebook's papermill duration),
+    the clone's commit, and the core seconds its ``train`` stage's runs recorded."""
+    import json
+    import subprocess
+
+    root = Path(clone)
+    stages = {}
+    for path in sorted((root / "notebooks" / "executed").glob("*.ipynb")):
+        duration = json.loads(path.read_text())["metadata"].get("papermill", {}).get("duration")
+        if duration is not None:
+            stages[path.stem] = round(float(duration), 1)
+    commit = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
+                            text=True, check=True).stdout.strip()
+    record = {"commit": commit, "stage_seconds": stages,
+              "date": time.strftime("%Y-%m-%d", time.gmtime((root / "notebooks" / "executed").stat().st_mtime))}
+    FROM_SCRATCH.write_text(json.dumps(record, indent=2, sort_keys=True) + "\n")
+    return record
 
 
 def train_stage_projection(params, splits, floors, workers: int = 2) -> tuple[int, float, float]:
     """(runs, projected seconds, seconds with updates at the matmul floor) of the pipeline's ``train`` stage:
     every cell of ``pipeline`` in params.yaml plus the ablation, × seeds, ``workers`` processes at a time, each
-    training a cell's seeds as one stack (``splits`` are measured per run of such a stack). A run costs
+    training a cell's seeds as one stack (``splits`` are measured per run of such a stack, two processes side by
+    side). A run costs
     the square's environment time of its config family and method (``splits``), scaled by its region's episode
     length, plus its update count times the measured update of the same batch size (``paper``'s for batch 1024,
     ``tuned``'s for 128)."""
@@ -438,27 +497,40 @@ def general_update_section(params, floors: dict[str, float]) -> None:
 
 
 def training_section(params, square, floors: dict[str, float], episodes: int) -> None:
-    seeds = 3  # a stack of three seeds: more gives `tuned` nothing per run
-    print(f"== 1. training time per run, square (one thread): a run alone, and {seeds} seeds stacked in one "
-          "process as the pipeline trains them ==")
+    print("== 1. training time per run, square (one thread): a run alone, and a cell's seeds stacked in one process "
+          "with a second such process beside it, as the pipeline's `train` stage runs them ==")
     splits = {}
     for config, target in (("paper", 90), ("tuned", 180)):
+        seeds = len(cell_seeds(params, config))
         for method in ("cr", "sw"):
             alone = training_split(params, square, config, method, episodes)
-            stacked = training_split(params, square, config, method, episodes, runs=seeds)
-            splits[(config, method)] = stacked[:2]
-            for label, (env_s, per_update, upd_1000, full) in (("alone", alone), (f"{seeds} stacked", stacked)):
-                print(f"{config} {method.upper()}-MARL, {label:9s}: per 1,000 episodes: environment+geometry+acting "
+            env_s, per_update = side_by_side_split(config, method, seeds, episodes)
+            splits[(config, method)] = (env_s, per_update)
+            stacked = (env_s, per_update, *projected_run(params, config, method, env_s, per_update))
+            for label, (env_s, per_update, upd_1000, full) in (("alone", alone), (f"{seeds} stacked x2", stacked)):
+                print(f"{config} {method.upper()}-MARL, {label:12s}: per 1,000 episodes: environment+geometry+acting "
                       f"{env_s:6.1f} s, updates {upd_1000:6.1f} s ({per_update * 1e3:.1f} ms per update of 9 "
                       f"agents); projected 10,000-episode run {full:6.1f} s (target {target} s); the matmul floor "
                       f"is {floors[config] / per_update:.0%} of an update's time")
-            print(f"{config} {method.upper()}-MARL: stacking {seeds} seeds takes {stacked[3] / alone[3]:.2f}x the "
-                  "time per run of a run alone")
+            print(f"{config} {method.upper()}-MARL: {seeds} seeds stacked, two processes side by side, take "
+                  f"{stacked[3] / alone[3]:.2f}x the time per run of a run alone")
     runs, projected, at_floor = train_stage_projection(params, splits, floors)
     print(f"pipeline `train` stage, {runs} runs, two processes at a time: projected {projected / 60:.0f} min at "
-          f"these speeds (two processes share the memory bus, so the stage runs a little longer: README has the "
-          f"measured time); {at_floor / 60:.0f} min if every update ran at its matmul floor. The pipeline's budget "
-          f"is 45 min for the whole `dvc repro`, of which `evaluate`, `figures` and `report` take a few minutes")
+          f"these speeds; {at_floor / 60:.0f} min if every update ran at its matmul floor")
+    if not FROM_SCRATCH.exists():
+        print(f"no measured forced `dvc repro` to add the other stages from ({FROM_SCRATCH.name}: "
+              "`bench.py --record-from-scratch CLONE` after one)")
+        return
+    import json
+
+    record = json.loads(FROM_SCRATCH.read_text())
+    others = {k: v for k, v in record["stage_seconds"].items() if k != "train"}
+    rest = sum(others.values())
+    print(f"whole forced `dvc repro`: projected {(projected + rest) / 60:.0f} min ({(at_floor + rest) / 60:.0f} at "
+          f"the floor) = `train` + {rest / 60:.0f} min of the other stages as the forced repro of {record['date']} "
+          f"(commit {record['commit']}) measured them (" + ", ".join(
+              f"{k} {v / 60:.1f}" for k, v in sorted(others.items(), key=lambda kv: -kv[1]) if v >= 30)
+          + "); budget 45 min")
 
 
 def update_section(params) -> None:
@@ -534,7 +606,18 @@ def main(argv=None) -> int:
                         help="the sections to run (default: all; 1 and 6 need 0's floors and run it too)")
     parser.add_argument("--full", action="store_true", help="also train the full 10,000-episode CR run")
     parser.add_argument("--allocator-probe", choices=("default", "held"), help=argparse.SUPPRESS)
+    parser.add_argument("--split-probe", nargs=3, metavar=("CONFIG", "METHOD", "RUNS"), help=argparse.SUPPRESS)
+    parser.add_argument("--record-from-scratch", metavar="CLONE",
+                        help=f"after a forced `dvc repro` from scratch in CLONE, write its stage times to "
+                             f"benchmarks/{FROM_SCRATCH.name} (section 1 adds them to its projection) and stop")
     args = parser.parse_args(argv)
+    if args.record_from_scratch:
+        print(record_from_scratch(args.record_from_scratch))
+        return 0
+    if args.split_probe:
+        config, method, runs = args.split_probe
+        split_probe(config, method, int(runs), args.episodes)
+        return 0
     if args.allocator_probe:
         allocator_probe(args.allocator_probe, args.episodes)
         return 0
