@@ -5,7 +5,7 @@ A run is reproducible bit for bit only by code that computes what its code compu
 without anyone meaning to: seeds 0-2 of the ``paper`` runs once differed from a rerun of the same version from the
 first episode's reward (3.35099 against 3.35101), and nothing recorded it. So every run records ``fingerprint()``
 in its ``run.json``: a digest of the numbers a fixed, tiny workload gives — a few steps of the coverage world with
-each reward, observation and fence of the ``paper`` and ``tuned`` configurations, and two MADDPG updates at their
+each reward, credit and fence of the ``paper`` and ``tuned`` configurations, and two MADDPG updates at their
 batch shapes — and the versions of the libraries that compute them. Two runs with the same fingerprint were
 trained by the same arithmetic; the report counts the fingerprints its runs carry.
 
@@ -77,7 +77,7 @@ def _update_numbers(digest) -> None:
 @functools.cache
 def fingerprint() -> str:
     """16 hex digits of the numbers the fixed workload gives here and the computing libraries' versions. Computed
-    once per process (~0.5 s), on one thread as training runs."""
+    once per process (about 1-3 s), on one thread as training runs."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
