@@ -104,18 +104,24 @@ def split_probe(config: str, method: str, runs: int, episodes: int) -> None:
     print(json.dumps({"env_s": env_s, "per_update": per_update}))
 
 
-def side_by_side_split(config: str, method: str, runs: int, episodes: int) -> tuple[float, float]:
-    """(env seconds per 1,000 episodes, seconds per update), per run, of ``runs`` seeds stacked in one process
-    while a second, identical process trains beside it: the mean of the two."""
+def probes_side_by_side(args: list[str], processes: int) -> list[dict]:
+    """Run ``processes`` fresh copies of this script with ``args`` (a hidden probe option) at once; → the JSON each
+    printed last."""
     import json
     import subprocess
 
-    cmd = [sys.executable, __file__, "--split-probe", config, method, str(runs), "--episodes", str(episodes)]
-    procs = [subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True) for _ in range(2)]
+    cmd = [sys.executable, __file__, *args]
+    procs = [subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True) for _ in range(processes)]
     outputs = [p.communicate()[0] for p in procs]
     if any(p.returncode for p in procs):
-        raise RuntimeError(f"split probe failed: {' '.join(cmd)}")
-    probes = [json.loads(o.strip().splitlines()[-1]) for o in outputs]
+        raise RuntimeError(f"probe failed: {' '.join(cmd)}")
+    return [json.loads(o.strip().splitlines()[-1]) for o in outputs]
+
+
+def side_by_side_split(config: str, method: str, runs: int, episodes: int) -> tuple[float, float]:
+    """(env seconds per 1,000 episodes, seconds per update), per run, of ``runs`` seeds stacked in one process
+    while a second, identical process trains beside it: the mean of the two."""
+    probes = probes_side_by_side(["--split-probe", config, method, str(runs), "--episodes", str(episodes)], 2)
     return tuple(float(np.mean([pr[k] for pr in probes])) for k in ("env_s", "per_update"))
 
 
@@ -393,19 +399,9 @@ def allocator_probe(allocator: str, episodes: int) -> None:
 
 def allocator_comparison(episodes: int) -> dict[tuple[str, int], dict]:
     """{(allocator, processes side by side): the first process's probe} for both allocators, 1 and 2 processes."""
-    import json
-    import subprocess
-
-    out = {}
-    for side_by_side in (1, 2):
-        for allocator in ("default", "held"):
-            cmd = [sys.executable, __file__, "--allocator-probe", allocator, "--episodes", str(episodes)]
-            procs = [subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True) for _ in range(side_by_side)]
-            outputs = [p.communicate()[0] for p in procs]
-            if any(p.returncode for p in procs):
-                raise RuntimeError(f"allocator probe failed: {' '.join(cmd)}")
-            out[(allocator, side_by_side)] = json.loads(outputs[0].strip().splitlines()[-1])
-    return out
+    return {(allocator, side_by_side): probes_side_by_side(
+                ["--allocator-probe", allocator, "--episodes", str(episodes)], side_by_side)[0]
+            for side_by_side in (1, 2) for allocator in ("default", "held")}
 
 
 def machine_section(params) -> dict[str, float]:

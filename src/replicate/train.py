@@ -199,6 +199,11 @@ class Trainer:
         """What makes run ``run`` the run it is, checked on resume."""
         return run_identity(self.rc, self.region, self.episodes, self.seeds[run])
 
+    def run_record(self, run: int = 0) -> dict:
+        """Run ``run``'s identity and the fingerprint of the arithmetic training it (``arithmetic.py``; recorded,
+        not compared: a run resumes or is kept whatever machine trained it)."""
+        return {**self.identity(run), "arithmetic": fingerprint()}
+
     def _runs(self, x: np.ndarray) -> np.ndarray:
         """[S·E, ...] of the stacked environments → [S, E, ...], one block per run."""
         return x.reshape(len(self.seeds), -1, *x.shape[1:])
@@ -210,8 +215,7 @@ class Trainer:
         algo, cfg = self.rc.algo, self.rc.algo.maddpg
         n_env, runs = algo.n_envs, len(self.seeds)
         for k, out in enumerate(self.outs):
-            artifacts.write_json(out / "run.json", {**self.identity(k), "arithmetic": fingerprint(),
-                                                    "status": "running"})
+            artifacts.write_json(out / "run.json", {**self.run_record(k), "status": "running"})
         bar = tqdm(total=self.episodes * runs, initial=len(self.rows[0]) * runs, disable=not self.progress,
                    unit="ep", smoothing=0.05)
         t0, c0 = time.perf_counter() - self.wall, time.process_time() - self.cpu
@@ -293,8 +297,7 @@ class Trainer:
         summaries = []
         for k, out in enumerate(self.outs):
             summary = {
-                **self.identity(k),
-                "arithmetic": fingerprint(),  # the numbers this code computes here (arithmetic.py)
+                **self.run_record(k),
                 "status": "finished",
                 "wall_seconds": round(self.wall, 2),  # of the stack: every run of it took this long
                 "cpu_seconds": round(self.cpu, 2),  # of the stack's process
