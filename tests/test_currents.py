@@ -21,6 +21,26 @@ def test_a_buoy_at_rest_drifts_with_a_uniform_current(params, regions):
     np.testing.assert_allclose(moved[1], np.broadcast_to([0.0, -0.02], (9, 2)), atol=1e-12)
 
 
+def test_a_gps_velocity_feels_the_current_and_a_log_does_not(params, regions):
+    """``sensors.velocity``: over the ground (GPS) a buoy reads its velocity through the water plus the drift that
+    carried it; through the water (a log) the drift is invisible. In still water both read the same numbers."""
+    from replicate.config import SensorsConfig
+
+    envs = {frame: CoverageEnv(regions["square"], params.world, params.coverage, n_envs=2, observation="local",
+                               sensors_config=SensorsConfig(velocity=frame), wall=True, seed=0)
+            for frame in ("water", "ground")}
+    action = np.random.default_rng(1).uniform(-1, 1, (2, 9, 2))
+    still = [env.reset(start="random") is not None and env.step(action).obs for env in envs.values()]
+    np.testing.assert_array_equal(still[0], still[1])
+    drift = np.array([[0.3, 0.0], [0.0, -0.2]])
+    for env in envs.values():
+        env.reset(start="random")
+        env.set_current(Current.uniform(drift))
+    water, ground = (env.step(action).obs[..., :2] for env in envs.values())
+    np.testing.assert_allclose(ground - water, np.broadcast_to(drift[:, None], (2, 9, 2)), atol=1e-6)
+    np.testing.assert_array_equal(water, envs["water"].vel.astype(np.float32))
+
+
 def test_the_vortex_turns_at_its_peak_speed_one_core_radius_out():
     current = Current.vortex([[1.0, 1.0]], peak=0.4, core=0.5)
     pos = np.array([[[1.5, 1.0], [1.0, 1.5], [1.0, 1.0], [4.0, 1.0]]])

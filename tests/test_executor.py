@@ -67,6 +67,7 @@ def test_ray_runs_optuna_trials_as_tasks(ray_local, tmp_path):
     value and CPU seconds in a SQLite study another process could join."""
     import optuna
 
+    from replicate.arithmetic import search_fingerprint
     from replicate.regions import make_region
     from replicate.tuning import tune_baseline
 
@@ -78,6 +79,7 @@ def test_ray_runs_optuna_trials_as_tasks(ray_local, tmp_path):
     assert result["trials"] == 4 and result["failed_trials"] == 0 and result["cpu_seconds"] > 0
     study = optuna.load_study(study_name=result["study"], storage=storage)
     assert all(0 < t.value <= 1 and t.user_attrs["cpu_seconds"] > 0 for t in study.trials)
+    assert {t.user_attrs["arithmetic"] for t in study.trials} == {search_fingerprint()}  # the sampler's process
 
 
 def test_an_unknown_executor_is_refused_by_name():

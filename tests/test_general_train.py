@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from replicate import arithmetic
 from replicate.general_train import ON_SHORE, FleetNStep, FleetReplay, GeneralTrainer, on_shore, shore_rays
 from replicate.shared_maddpg import SharedActor
 
@@ -33,12 +34,15 @@ def two_runs(params, tmp_path_factory):
 def test_a_run_writes_its_actor_curve_and_summary(two_runs):
     out, (summary, _) = two_runs
     run = out / "run0"
-    assert json.loads((run / "run.json").read_text())["status"] == "finished"
+    record = json.loads((run / "run.json").read_text())
+    assert record["status"] == "finished"
+    assert record["arithmetic"] == arithmetic.general_fingerprint()  # which numbers trained it, recorded
     assert [w["n_agents"] for w in summary["worlds"]] == [6, 5]
     lines = gzip.decompress((run / "curve.csv.gz").read_bytes()).decode().splitlines()
     assert len(lines) == 1 + 48 // 8 and lines[0].startswith("batch,episodes,world")
     saved = torch.load(run / "actor.pt")
     assert len(saved["columns"]) == 22 and saved["sensors"]["neighbours"] == 4
+    assert saved["sensors"]["velocity"] == "ground"  # over the ground, as params.yaml reads it
     actor = SharedActor(22, 2, saved["hidden"])
     actor.load_state_dict(saved["actor"])
     for n in (5, 9, 30):  # one network for any fleet

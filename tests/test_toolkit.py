@@ -232,6 +232,7 @@ def test_a_policy_of_local_sensors_exports_its_sensors(params, regions, tmp_path
     meta = export_policy(tmp_path / "run" / "actors.pt", regions["square"], tmp_path / "policy.pt")
     assert len(meta["observation_layout"]) == 22 and "x" not in meta["observation_layout"]
     assert [s["sensor"] for s in meta["sensors"]] == ["own_velocity", "neighbours", "shore_distances"]
+    assert meta["sensors"][0]["frame"] == "through the water (log)"  # a per-region config's default
     assert meta["sensors"][1]["k"] == 4 and meta["sensors"][2]["ray_range_m"] == 2.0
     assert sum(len(s["columns"]) for s in meta["sensors"]) == 22
     assert act(tmp_path / "policy.pt", np.zeros((9, 22))).shape == (9, 2)

@@ -551,3 +551,36 @@ def test_the_arithmetic_fingerprint_names_the_numbers_not_the_code(monkeypatch):
     arithmetic.fingerprint.cache_clear()
     assert arithmetic.fingerprint() == first
     assert first not in changed and len(set(changed)) == 2
+
+
+def test_the_general_and_search_fingerprints_name_their_own_numbers(monkeypatch):
+    """The general policy's fingerprint changes with its learner's arithmetic (one layer's matmul rounded through
+    float64) and the per-region one does not; a study's changes with TPE's arithmetic (its inverse CDF rounded
+    through float32); each is stable and the three differ."""
+    from replicate import shared_maddpg
+
+    general, search, regions = (arithmetic.general_fingerprint(), arithmetic.search_fingerprint(),
+                                arithmetic.fingerprint())
+    assert len({general, search, regions}) == 3
+    for fp in (arithmetic.general_fingerprint, arithmetic.search_fingerprint):
+        fp.cache_clear()
+    assert (arithmetic.general_fingerprint(), arithmetic.search_fingerprint()) == (general, search)
+
+    class RoundedLinear(torch.nn.Linear):
+        def forward(self, x):
+            return torch.nn.functional.linear(x.double(), self.weight.double(), self.bias.double()).float()
+
+    with monkeypatch.context() as m:
+        m.setattr(shared_maddpg.nn, "Linear", RoundedLinear)
+        arithmetic.general_fingerprint.cache_clear()
+        arithmetic.fingerprint.cache_clear()
+        assert arithmetic.general_fingerprint() != general and arithmetic.fingerprint() == regions
+    with monkeypatch.context() as m:
+        from optuna.samplers._tpe import _truncnorm
+
+        ppf = _truncnorm.ppf  # TPE's inverse CDF, which turns its uniform draws into proposals
+        m.setattr(_truncnorm, "ppf", lambda q, a, b: ppf(q, a, b).astype(np.float32).astype(np.float64))
+        arithmetic.search_fingerprint.cache_clear()
+        assert arithmetic.search_fingerprint() != search
+    for fp in (arithmetic.general_fingerprint, arithmetic.search_fingerprint, arithmetic.fingerprint):
+        fp.cache_clear()

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from replicate import tuning
+from replicate import arithmetic, tuning
 from replicate.config import ConfigError, Dimension, Search, load_params, run_config
 
 from .conftest import ROOT
@@ -44,6 +44,8 @@ def test_a_finished_study_is_read_back_and_a_longer_one_resumes(tmp_path, region
     study = tuning.open_study(f"sqlite:///{tmp_path}/b.db", done["study"], 0)
     drawn = [tuple(t.params.values()) for t in study.trials]
     assert len(set(drawn)) == 5, "a resumed study draws new trials, not its first ones again"
+    # every trial names the arithmetic that scored it and proposed it, in the storage other processes read
+    assert {t.user_attrs["arithmetic"] for t in study.trials} == {arithmetic.search_fingerprint()}
 
 
 def test_a_changed_search_is_a_study_of_its_own(tmp_path, regions):

@@ -9,6 +9,18 @@ each reward, credit and fence of the ``paper`` and ``tuned`` configurations, and
 batch shapes — and the versions of the libraries that compute them. Two runs with the same fingerprint were
 trained by the same arithmetic; the report counts the fingerprints its runs carry.
 
+The general policy computes with other kernels: its shared actor and pooled critic are ``nn.Linear`` layers (MKL's
+``sgemm``, whose code path MKL picks per CPU: ``MKL_CBWR=AVX2`` changes its update's numbers on this project's
+AVX-512 CPU and leaves the per-region MADDPG's ``bmm`` numbers alone), and its worlds have the shore wall, the
+local sensors and the events. ``general_fingerprint()`` digests that workload: a few steps of a generated lake
+behind the wall with a loss and a drift, two updates of the shared learner, and the exported policy's actions.
+Each general run records it.
+
+A study is numbers of two kinds: its trials' scores (baselines stepping in the worlds, or MADDPG training), and
+the values TPE proposes from them (numpy and scipy; on this CPU TPE's first proposal once came out one ulp from the
+committed study's, and the studies parted from there on). ``search_fingerprint()`` digests both worlds' steps,
+the MADDPG updates and a fixed TPE study; every trial records it in the study's storage.
+
 The workload's values are fixed here, not read from ``params.yaml``: changing a parameter does not change the
 fingerprint, only changing how the numbers are computed does.
 """
@@ -22,8 +34,18 @@ from importlib.metadata import version
 import numpy as np
 import torch
 
-from .config import CoverageConfig, CRRewardConfig, MADDPGConfig, SWRewardConfig, WorldConfig
+from .config import (
+    CoverageConfig,
+    CRRewardConfig,
+    MADDPGConfig,
+    SensorsConfig,
+    SharedLearnerConfig,
+    SWRewardConfig,
+    WorldConfig,
+)
+from .currents import random_current
 from .env import CoverageEnv
+from .lakes import lake_region, training
 from .maddpg import MADDPG, ReplayBuffer
 from .regions import box_region
 
@@ -74,16 +96,95 @@ def _update_numbers(digest) -> None:
         digest.update(agent.policy(rng.normal(size=(50, 9, 2)).astype(np.float32))[1].tobytes())
 
 
-@functools.cache
-def fingerprint() -> str:
-    """16 hex digits of the numbers the fixed workload gives here and the computing libraries' versions. Computed
-    once per process (about 1-3 s), on one thread as training runs."""
+def _general_world_numbers(digest) -> None:
+    """Six steps of 4 environments on a generated lake behind the wall, local sensors, CR's reward with the
+    difference credit, a drift, and a loss after three steps: observations, rewards, unions, positions."""
+    cov_area = 0.5 * COVERAGE.edges * COVERAGE.radius**2 * np.sin(2 * np.pi / COVERAGE.edges)  # A(Cov)
+    lake = lake_region(training(1, n_range=(9, 9), ratio_range=(0.9, 0.9))[0], cov_area)
+    cr = CRRewardConfig(r1=60.0, r2=30.0, r3=0.0, c1=0.0, c2=50.0)
+    env = CoverageEnv(lake, WORLD, COVERAGE, n_envs=4, reward="cr", cr=cr, observation="local",
+                      sensors_config=SensorsConfig(), wall=True, union_credit="difference", seed=0)
+    events = np.random.default_rng(3)
+    env.set_current(random_current(events, 4, lake.polygon, 0.6))
+    digest.update(env.reset(start="corner").tobytes())
+    for t in range(6):
+        if t == 3:
+            env.lose(3, events)
+        step = env.step(events.uniform(-1, 1, (4, WORLD.n_agents, 2)).astype(np.float32))
+        for array in (step.obs, step.reward, step.union_area, env.pos):
+            digest.update(np.ascontiguousarray(array).tobytes())
+
+
+def _shared_update_numbers(digest) -> None:
+    """Two updates of the shared actor and pooled critic on random fleets of 5-12 buoys padded to 12 (the observation
+    of ``SensorsConfig()``): every parameter after them, and the exported policy's actions."""
+    from .export import FleetPolicy
+    from .shared_maddpg import FleetBatch, SharedMADDPG
+
+    g = torch.Generator().manual_seed(4)
+    od, b, n_max = 22, 256, 12
+    learner = SharedMADDPG(od, 2, SharedLearnerConfig(pool_neighbours=6), seed=0)
+    for _ in range(2):
+        live = torch.arange(n_max)[None] < torch.randint(5, n_max + 1, (b, 1), generator=g)
+        batch = FleetBatch(obs=torch.randn(b, n_max, od, generator=g), act=torch.rand(b, n_max, 2, generator=g) * 2 - 1,
+                           rew=torch.randn(b, n_max, generator=g), next_obs=torch.randn(b, n_max, od, generator=g),
+                           pos=torch.randn(b, n_max, 2, generator=g), next_pos=torch.randn(b, n_max, 2, generator=g),
+                           live=live, next_live=live, disc=torch.full((b,), 0.9))
+        learner.update(batch)
+    for net in (learner.actor, learner.critic, learner.actor_target, learner.critic_target):
+        for p in net.parameters():
+            digest.update(p.detach().numpy().tobytes())
+    policy = torch.jit.script(FleetPolicy(learner.actor.net.eval()))
+    with torch.no_grad():
+        for n in (5, 9, 50):
+            digest.update(policy(torch.randn(n, od, generator=g)).numpy().tobytes())
+
+
+def _tpe_numbers(digest) -> None:
+    """Fifteen trials of a seeded TPE study on a fixed function of two values: every proposal."""
+    import optuna
+
+    def objective(trial) -> float:  # a linear and a log-scaled value, as the gains' searches have
+        x, y = trial.suggest_float("x", -1, 1), trial.suggest_float("y", 0.1, 10, log=True)
+        return (x - 0.3) ** 2 + np.sin(3 * y)
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=0, n_startup_trials=10))
+    study.optimize(objective, n_trials=15)
+    digest.update(np.array([[t.params["x"], t.params["y"]] for t in study.trials]).tobytes())
+
+
+def _digest(*workloads, libraries: tuple[str, ...] = LIBRARIES) -> str:
+    """16 hex digits of the ``libraries``' versions and the numbers ``workloads`` give, on one thread as training
+    runs."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        digest = hashlib.sha256(" ".join(f"{lib}=={version(lib)}" for lib in LIBRARIES).encode())
-        _world_numbers(digest)
-        _update_numbers(digest)
+        digest = hashlib.sha256(" ".join(f"{lib}=={version(lib)}" for lib in libraries).encode())
+        for workload in workloads:
+            workload(digest)
     finally:
         torch.set_num_threads(threads)
     return digest.hexdigest()[:16]
+
+
+@functools.cache
+def fingerprint() -> str:
+    """The per-region runs' fingerprint: the coverage world's steps with the ``paper`` and ``tuned`` rewards and
+    two MADDPG updates. Computed once per process (about 1-3 s)."""
+    return _digest(_world_numbers, _update_numbers)
+
+
+@functools.cache
+def general_fingerprint() -> str:
+    """The general policy's fingerprint: a generated lake behind the wall with events, two updates of the shared
+    learner and the exported policy's actions. Computed once per process."""
+    return _digest(_general_world_numbers, _shared_update_numbers)
+
+
+@functools.cache
+def search_fingerprint() -> str:
+    """A study's fingerprint: the steps of both kinds of world, the MADDPG updates its trials may train with, and a
+    fixed TPE study. Computed once per process."""
+    return _digest(_world_numbers, _update_numbers, _general_world_numbers, _tpe_numbers,
+                   libraries=(*LIBRARIES, "optuna", "scipy"))

@@ -229,6 +229,7 @@ class SensorsConfig:
     comm_range: float = 2.0
     rays: int = 8
     ray_range: float = 2.0
+    velocity: Literal["water", "ground"] = "water"  # through the water (a log) or over the ground (GPS)
 
 
 @dataclass(frozen=True)

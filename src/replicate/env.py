@@ -128,6 +128,7 @@ class CoverageEnv:
         self.wall = wall
         self.shore = None  # the shore's edges on a grid (``shore.Shoreline``), with the wall
         self.current = None  # the water's drift (``currents.Current``), None: still water
+        self.drift = 0.0  # the water's velocity that carried each buoy in the last step, [E, N, 2] (0.0: none)
         if wall:
             self.shore = shoreline(region.polygon, self.step_reach())
         if geofence is None:
@@ -182,6 +183,7 @@ class CoverageEnv:
         starts = [self.sample_start(per_block, rng) for rng in self.rngs]
         self.pos = np.concatenate(starts).reshape(self.n_envs, self.n_agents, 2)
         self.vel = np.zeros_like(self.pos)
+        self.drift = 0.0
         self.alive = None
         self.t = 0
         return self.observe()
@@ -211,7 +213,8 @@ class CoverageEnv:
         if self.observation == "local":
             sc = self.sensor_config
             return sensors.local_observation(self.pos, self.vel, self.shore_edges, self.ray_directions,
-                                             sc.neighbours, sc.comm_range, sc.ray_range, self.alive)
+                                             sc.neighbours, sc.comm_range, sc.ray_range, self.alive,
+                                             self.drift if sc.velocity == "ground" else 0.0)
         obs = self.pos if self.observation == "position" else np.concatenate([self.pos, self.vel], axis=-1)
         return obs.astype(np.float32)
 
@@ -246,6 +249,7 @@ class CoverageEnv:
         drift = 0.0 if self.current is None else self.current.at(self.pos)  # the water carries the buoys
         if self.current is not None and self.alive is not None:
             drift = np.where(self.alive[..., None], drift, 0.0)
+        self.drift = drift
         end = self.pos + (self.vel + drift) * w.dt
         if self.wall:
             pos, vel = wall_step(self.region.polygon, self.pos.reshape(-1, 2), end.reshape(-1, 2),

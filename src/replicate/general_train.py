@@ -23,6 +23,7 @@ import torch
 from tqdm import tqdm
 
 from . import artifacts
+from .arithmetic import general_fingerprint
 from .config import GeneralConfig, Params, to_dict
 from .currents import random_current
 from .env import observation_columns
@@ -231,6 +232,7 @@ class GeneralTrainer:
         summary = {"status": "finished", "seed": self.seed, "general": to_dict(gc),
                    "worlds": [{"region": w.region.name, "n_agents": w.n_agents} for w in self.worlds],
                    "selected_episode": self.best["episodes"], "selected_validation_coverage": self.best["validation"],
-                   "wall_seconds": round(wall, 2), "cpu_seconds": round(cpu, 2)}
+                   "wall_seconds": round(wall, 2), "cpu_seconds": round(cpu, 2),
+                   "arithmetic": general_fingerprint()}  # which numbers trained it (``arithmetic.py``)
         artifacts.write_json(self.out / "run.json", summary)
         return summary

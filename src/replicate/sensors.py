@@ -15,9 +15,13 @@ from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
 
-def own_velocity(vel: np.ndarray) -> np.ndarray:
-    """The buoy's velocity in the world frame, [E, N, 2] → [E, N, 2] (a GPS or log reads it on board)."""
-    return vel
+def own_velocity(vel: np.ndarray, drift: np.ndarray | float = 0.0) -> np.ndarray:
+    """The buoy's velocity in the world frame, [E, N, 2] → [E, N, 2]: through the water (``vel``, what a log
+    reads), or over the ground with the water's ``drift`` [E, N, 2] added (what a GPS reads; in still water the
+    same numbers). Over the ground a buoy feels a current: the general policy reads it so (``velocity: ground``).
+    A buoy the water holds against the shore reads the drift too, where a GPS would read the wall's stop: the
+    sum is taken before the wall, as ``env.integrate`` moves the buoy."""
+    return vel + drift if np.ndim(drift) else vel
 
 
 def neighbours(pos: np.ndarray, k: int, comm_range: float, alive: np.ndarray | None = None
@@ -126,7 +130,8 @@ def describe(config) -> list[dict]:
     k, rays = config.neighbours, config.rays
     names = columns(k, rays)
     return [
-        {"sensor": "own_velocity", "columns": names[:2], "shape": "[E, N, 2]", "units": "m/s"},
+        {"sensor": "own_velocity", "columns": names[:2], "shape": "[E, N, 2]", "units": "m/s",
+         "frame": "over the ground (GPS)" if config.velocity == "ground" else "through the water (log)"},
         {"sensor": "neighbours", "columns": names[2:2 + 3 * k], "shape": f"[E, N, {k}, 2] and mask [E, N, {k}]",
          "k": k, "comm_range_m": config.comm_range, "units": "m, relative to the buoy; mask 1 = heard"},
         {"sensor": "shore_distances", "columns": names[2 + 3 * k:], "shape": f"[E, N, {rays}]",
@@ -136,9 +141,12 @@ def describe(config) -> list[dict]:
 
 
 def local_observation(pos: np.ndarray, vel: np.ndarray, segments: np.ndarray, directions: np.ndarray, k: int,
-                      comm_range: float, ray_range: float, alive: np.ndarray | None = None) -> np.ndarray:
-    """Every sensor of every buoy, concatenated in the order of ``columns``: [E, N, 2 + 3k + rays] float32."""
+                      comm_range: float, ray_range: float, alive: np.ndarray | None = None,
+                      drift: np.ndarray | float = 0.0) -> np.ndarray:
+    """Every sensor of every buoy, concatenated in the order of ``columns``: [E, N, 2 + 3k + rays] float32.
+    ``drift``: the water's velocity at each buoy [E, N, 2], for a velocity over the ground (0.0: through the
+    water)."""
     rel, mask = neighbours(pos, k, comm_range, alive)
     e, n = pos.shape[:2]
-    return np.concatenate([own_velocity(vel), rel.reshape(e, n, 2 * k), mask,
+    return np.concatenate([own_velocity(vel, drift), rel.reshape(e, n, 2 * k), mask,
                            shore_distances(pos, segments, directions, ray_range)], axis=-1).astype(np.float32)

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from . import baselines, metrics
+from .arithmetic import search_fingerprint
 from .config import (
     Dimension,
     LloydConfig,
@@ -105,7 +106,8 @@ def run_trials(study, score: Callable[[dict], tuple[float, float]], space: dict[
     ``local``: one trial after another in this process, TPE seeing every result before its next draw (the order
     the committed studies were run in). ``ray``: batches of as many trials as the cluster has CPUs, each trial a
     Ray task (TPE draws a batch before it sees its results). Any number of processes may work on one study at
-    once through a shared storage URL."""
+    once through a shared storage URL. Each trial records its CPU seconds and the arithmetic fingerprint of the
+    process running the sampler (``arithmetic.search_fingerprint``) as user attributes."""
     import optuna
 
     def finished() -> int:
@@ -115,6 +117,7 @@ def run_trials(study, score: Callable[[dict], tuple[float, float]], space: dict[
         def objective(trial) -> float:
             value, cpu = score(suggest(trial, space))
             trial.set_user_attr("cpu_seconds", cpu)
+            trial.set_user_attr("arithmetic", search_fingerprint())
             return value
 
         if finished() < trials:
@@ -131,6 +134,7 @@ def run_trials(study, score: Callable[[dict], tuple[float, float]], space: dict[
             raise
         for t, (value, cpu) in zip(batch, results, strict=True):
             t.set_user_attr("cpu_seconds", cpu)
+            t.set_user_attr("arithmetic", search_fingerprint())  # the sampler's process (workers score)
             study.tell(t, value)
 
 
