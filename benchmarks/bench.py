@@ -22,7 +22,8 @@
    seeds trained in fresh processes with glibc's default allocator against the held one, one process alone and
    two side by side (as the pipeline runs them); time per update, page faults, and the ratios.
 5. BenchMARL 1.5.2 MADDPG on VMAS ``simple_spread`` against the project's MADDPG, both on the ``paper`` schedule:
-   seconds per 1,000 episodes end to end and one update at identical matrix shapes, as ratios
+   seconds per 1,000 episodes end to end and one update at identical matrix shapes, as ratios, with the
+   project's matmul floor at those shapes (the most any update of those matmuls could lead by)
    (``benchmarks/benchmarl_side_by_side.py``; sections 3's VMAS and 5 need the ``bench`` extra, which
    ``make bench`` installs).
 6. One update of the general policy's learner (``shared_maddpg``: the shared actor and the pooled critic) on a
@@ -580,6 +581,12 @@ def benchmarl_section() -> None:
     print(f"one update at identical shapes (9 agents, observation width {benchmarl_bench.OBS_WIDTH}, batch "
           f"{benchmarl_bench.BATCH}): project {ours['update_alone'] * 1e3:.1f} ms, BenchMARL "
           f"{theirs['update_alone'] * 1e3:.1f} ms, ratio {theirs['update_alone'] / ours['update_alone']:.2f}")
+    # the critics' first layers read 9 × 40 joint columns: at these shapes the matmuls alone bound the ratio
+    floor = update_gflop(*benchmarl_bench.project_agent_and_batch()) / machine_gemm_gflops()
+    lead = theirs["update_alone"] / floor
+    print(f"  the project's matmul floor at these shapes: {floor * 1e3:.1f} ms; the update is "
+          f"{ours['update_alone'] / floor:.2f}x it, BenchMARL's {lead:.2f}x: no update of these matmuls leads "
+          f"BenchMARL by more than {lead:.2f}x on this machine")
 
 
 def full_run(params, square) -> None:

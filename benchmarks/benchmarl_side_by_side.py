@@ -144,8 +144,9 @@ def project_end_to_end(episodes: int = 1000) -> dict:
     return {"per_1000_episodes": env_per_1000 + updates_per_1000 * per_update, "per_update": per_update}
 
 
-def project_update_alone(rounds: int = 5) -> float:
-    """Seconds per update of the project's MADDPG of 9 agents at BenchMARL's shapes (observation width 38)."""
+def project_agent_and_batch():
+    """The project's MADDPG of 9 agents at BenchMARL's shapes (observation width 38, the paper's networks and
+    batch) and one minibatch of random transitions."""
     import numpy as np
 
     from replicate.config import load_params
@@ -158,7 +159,12 @@ def project_update_alone(rounds: int = 5) -> float:
     obs, next_obs = (rng.normal(size=(size, AGENTS, OBS_WIDTH)).astype(np.float32) for _ in range(2))
     act = rng.uniform(-1, 1, (size, AGENTS, 2)).astype(np.float32)
     buf.add(obs, act, rng.normal(size=(size, AGENTS)).astype(np.float32), next_obs, cfg.gamma)
-    agent, batch = MADDPG(AGENTS, OBS_WIDTH, 2, cfg, "individual", seed=0), buf.sample(rng, BATCH)
+    return MADDPG(AGENTS, OBS_WIDTH, 2, cfg, "individual", seed=0), buf.sample(rng, BATCH)
+
+
+def project_update_alone(rounds: int = 5) -> float:
+    """Seconds per update of the project's MADDPG of 9 agents at BenchMARL's shapes (observation width 38)."""
+    agent, batch = project_agent_and_batch()
     return seconds_per_call(lambda: agent.update(batch), rounds)
 
 
