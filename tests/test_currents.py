@@ -39,6 +39,15 @@ def test_a_gps_velocity_feels_the_current_and_a_log_does_not(params, regions):
     water, ground = (env.step(action).obs[..., :2] for env in envs.values())
     np.testing.assert_allclose(ground - water, np.broadcast_to(drift[:, None], (2, 9, 2)), atol=1e-6)
     np.testing.assert_array_equal(water, envs["water"].vel.astype(np.float32))
+    gps = envs["ground"]
+    gps.lose(3, np.random.default_rng(2))  # a lost buoy stops: it reads no velocity and no drift
+    lost = ~gps.alive
+    reading = gps.step(action).obs[..., :2]
+    np.testing.assert_array_equal(reading[lost], 0.0)
+    np.testing.assert_allclose(reading[~lost] - gps.vel[~lost], np.repeat(drift, 6, axis=0), atol=1e-6)
+    gps.set_current(None)  # the next episode in still water reads the water's numbers again
+    assert not gps.reset(start="random")[..., :2].any()
+    np.testing.assert_array_equal(gps.step(action).obs[..., :2], gps.vel.astype(np.float32))
 
 
 def test_the_vortex_turns_at_its_peak_speed_one_core_radius_out():

@@ -166,6 +166,25 @@ def test_starts_losses_and_a_current_pass_the_api_and_seed_tests():
         CoverageParallelEnv("square", start="middle")
 
 
+@pytest.mark.parametrize("shore", ["wall", None])
+def test_a_gps_velocity_in_a_drift_stays_in_the_observation_space(shore):
+    """Over the ground a buoy's velocity is its own plus the drift: the space's velocity bound grows with the
+    current (a full push downstream, in the open and behind the wall)."""
+    from replicate.config import SensorsConfig
+
+    env = CoverageParallelEnv("square", observation="local", sensors_config=SensorsConfig(velocity="ground"),
+                              current=(0.6, 0.0), shore=shore, episode_length=30)
+    obs, _ = env.reset(seed=0)
+    fastest = 0.0
+    while env.agents:
+        obs, *_ = env.step({a: np.array([1.0, 1.0], np.float32) for a in env.agents})
+        assert all(env.observation_space(a).contains(o) for a, o in obs.items())
+        fastest = max([fastest, *(o[0] for o in obs.values())])
+    assert fastest > 2.0  # beyond the terminal speed through the water: the drift is read
+    with pytest.raises(ValueError, match="sensors velocity must be 'water' or 'ground', got 'gps'"):
+        CoverageParallelEnv("square", observation="local", sensors_config=SensorsConfig(velocity="gps"))
+
+
 def test_a_small_coverage_radius_is_resolved_as_finely_as_the_papers(params):
     from replicate.pettingzoo_env import scaled_coverage
 

@@ -10,15 +10,15 @@ batch shapes — and the versions of the libraries that compute them. Two runs w
 trained by the same arithmetic; the report counts the fingerprints its runs carry.
 
 The general policy computes with other kernels: its shared actor and pooled critic are ``nn.Linear`` layers (MKL's
-``sgemm``, whose code path MKL picks per CPU: ``MKL_CBWR=AVX2`` changes its update's numbers on this project's
-AVX-512 CPU and leaves the per-region MADDPG's ``bmm`` numbers alone), and its worlds have the shore wall, the
-local sensors and the events. ``general_fingerprint()`` digests that workload: a few steps of a generated lake
+``sgemm``, whose code path MKL picks per CPU: on an AVX-512 CPU, ``MKL_CBWR=AVX2`` changes its update's numbers
+and leaves the per-region MADDPG's ``bmm`` numbers alone), and its worlds have the shore wall, the local sensors
+and the events. ``general_fingerprint()`` digests that workload: a few steps of a generated lake
 behind the wall with a loss and a drift, two updates of the shared learner, and the exported policy's actions.
 Each general run records it.
 
 A study is numbers of two kinds: its trials' scores (baselines stepping in the worlds, or MADDPG training), and
-the values TPE proposes from them (numpy and scipy; on this CPU TPE's first proposal once came out one ulp from the
-committed study's, and the studies parted from there on). ``search_fingerprint()`` digests both worlds' steps,
+the values TPE proposes from them (numpy and scipy: two CPUs gave TPE's first proposal one ulp apart, and the two
+studies parted from there on, ``docs/TUNING.md``). ``search_fingerprint()`` digests both worlds' steps,
 the MADDPG updates and a fixed TPE study; every trial records it in the study's storage.
 
 The workload's values are fixed here, not read from ``params.yaml``: changing a parameter does not change the
@@ -47,6 +47,7 @@ from .currents import random_current
 from .env import CoverageEnv
 from .lakes import lake_region, training
 from .maddpg import MADDPG, ReplayBuffer
+from .metrics import cover_area
 from .regions import box_region
 
 LIBRARIES = ("torch", "numpy", "numba", "shapely")
@@ -55,6 +56,9 @@ WORLD = WorldConfig(n_agents=9, agent_radius=0.08, sensitivity=5.0, mass=1.0, dt
 COVERAGE = CoverageConfig(radius=0.5, edges=30, table_spacing=0.01, raster_spacing=0.025)
 SW = SWRewardConfig(r1=150.0, r2=200.0, alpha=150.0, beta=200.0, prop_range=(0.85, 1.2), coll_range=(0.0, 0.56))
 CR = CRRewardConfig(r1=60.0, r2=30.0, r3=0.0, c1=1.0, c2=50.0)
+SENSORS = SensorsConfig(neighbours=4, comm_range=2.0, rays=8, ray_range=2.0, velocity="ground")
+LEARNER = SharedLearnerConfig(hidden=64, embed=64, actor_lr=1e-3, critic_lr=1e-3, tau=0.01, grad_clip=0.5,
+                              actor_reg=1e-3, pool_range=0.0, pool_neighbours=6)
 # (reward, union credit, geofence): the paper's two methods in the open world and `tuned`'s in its box fence
 WORLDS = (("sw", "shared", None), ("cr", "shared", None), ("cr", "difference", 0.5))
 BATCHES = (1024, 128)  # `paper`'s and `tuned`'s minibatch: the update's matmul forms depend on the shapes
@@ -99,11 +103,11 @@ def _update_numbers(digest) -> None:
 def _general_world_numbers(digest) -> None:
     """Six steps of 4 environments on a generated lake behind the wall, local sensors, CR's reward with the
     difference credit, a drift, and a loss after three steps: observations, rewards, unions, positions."""
-    cov_area = 0.5 * COVERAGE.edges * COVERAGE.radius**2 * np.sin(2 * np.pi / COVERAGE.edges)  # A(Cov)
-    lake = lake_region(training(1, n_range=(9, 9), ratio_range=(0.9, 0.9))[0], cov_area)
+    spec = training(1, n_range=(9, 9), ratio_range=(0.9, 0.9))[0]
+    lake = lake_region(spec, cover_area(COVERAGE.radius, COVERAGE.edges))
     cr = CRRewardConfig(r1=60.0, r2=30.0, r3=0.0, c1=0.0, c2=50.0)
     env = CoverageEnv(lake, WORLD, COVERAGE, n_envs=4, reward="cr", cr=cr, observation="local",
-                      sensors_config=SensorsConfig(), wall=True, union_credit="difference", seed=0)
+                      sensors_config=SENSORS, wall=True, union_credit="difference", seed=0)
     events = np.random.default_rng(3)
     env.set_current(random_current(events, 4, lake.polygon, 0.6))
     digest.update(env.reset(start="corner").tobytes())
@@ -117,13 +121,13 @@ def _general_world_numbers(digest) -> None:
 
 def _shared_update_numbers(digest) -> None:
     """Two updates of the shared actor and pooled critic on random fleets of 5-12 buoys padded to 12 (the observation
-    of ``SensorsConfig()``): every parameter after them, and the exported policy's actions."""
+    of ``SENSORS``): every parameter after them, and the exported policy's actions."""
     from .export import FleetPolicy
     from .shared_maddpg import FleetBatch, SharedMADDPG
 
     g = torch.Generator().manual_seed(4)
     od, b, n_max = 22, 256, 12
-    learner = SharedMADDPG(od, 2, SharedLearnerConfig(pool_neighbours=6), seed=0)
+    learner = SharedMADDPG(od, 2, LEARNER, seed=0)
     for _ in range(2):
         live = torch.arange(n_max)[None] < torch.randint(5, n_max + 1, (b, 1), generator=g)
         batch = FleetBatch(obs=torch.randn(b, n_max, od, generator=g), act=torch.rand(b, n_max, 2, generator=g) * 2 - 1,
@@ -148,9 +152,13 @@ def _tpe_numbers(digest) -> None:
         x, y = trial.suggest_float("x", -1, 1), trial.suggest_float("y", 0.1, 10, log=True)
         return (x - 0.3) ** 2 + np.sin(3 * y)
 
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    study = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=0, n_startup_trials=10))
-    study.optimize(objective, n_trials=15)
+    verbosity = optuna.logging.get_verbosity()
+    optuna.logging.set_verbosity(optuna.logging.WARNING)  # no line per trial, the caller's level kept
+    try:
+        study = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=0, n_startup_trials=10))
+        study.optimize(objective, n_trials=15)
+    finally:
+        optuna.logging.set_verbosity(verbosity)
     digest.update(np.array([[t.params["x"], t.params["y"]] for t in study.trials]).tobytes())
 
 

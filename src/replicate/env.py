@@ -104,6 +104,8 @@ class CoverageEnv:
             raise ValueError(f"union_credit must be 'shared' or 'difference', got {union_credit!r}")
         if n_envs < 1 or world.n_agents < 1:
             raise ValueError("n_envs and n_agents must be at least 1")
+        if sensors_config is not None and sensors_config.velocity not in ("water", "ground"):
+            raise ValueError(f"sensors velocity must be 'water' or 'ground', got {sensors_config.velocity!r}")
         self.region = region
         self.world = world
         self.coverage = coverage
@@ -128,7 +130,7 @@ class CoverageEnv:
         self.wall = wall
         self.shore = None  # the shore's edges on a grid (``shore.Shoreline``), with the wall
         self.current = None  # the water's drift (``currents.Current``), None: still water
-        self.drift = 0.0  # the water's velocity that carried each buoy in the last step, [E, N, 2] (0.0: none)
+        self.drift = None  # the water's velocity that carried each buoy in the last step, [E, N, 2] (None: none)
         if wall:
             self.shore = shoreline(region.polygon, self.step_reach())
         if geofence is None:
@@ -183,7 +185,7 @@ class CoverageEnv:
         starts = [self.sample_start(per_block, rng) for rng in self.rngs]
         self.pos = np.concatenate(starts).reshape(self.n_envs, self.n_agents, 2)
         self.vel = np.zeros_like(self.pos)
-        self.drift = 0.0
+        self.drift = None
         self.alive = None
         self.t = 0
         return self.observe()
@@ -214,7 +216,7 @@ class CoverageEnv:
             sc = self.sensor_config
             return sensors.local_observation(self.pos, self.vel, self.shore_edges, self.ray_directions,
                                              sc.neighbours, sc.comm_range, sc.ray_range, self.alive,
-                                             self.drift if sc.velocity == "ground" else 0.0)
+                                             self.drift if sc.velocity == "ground" else None)
         obs = self.pos if self.observation == "position" else np.concatenate([self.pos, self.vel], axis=-1)
         return obs.astype(np.float32)
 
@@ -249,7 +251,7 @@ class CoverageEnv:
         drift = 0.0 if self.current is None else self.current.at(self.pos)  # the water carries the buoys
         if self.current is not None and self.alive is not None:
             drift = np.where(self.alive[..., None], drift, 0.0)
-        self.drift = drift
+        self.drift = None if self.current is None else drift
         end = self.pos + (self.vel + drift) * w.dt
         if self.wall:
             pos, vel = wall_step(self.region.polygon, self.pos.reshape(-1, 2), end.reshape(-1, 2),

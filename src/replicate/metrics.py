@@ -19,10 +19,14 @@ def coverage_fraction(region: Polygon, xy: np.ndarray, radius: float, edges: int
     return coverage_fraction_exact(region, xy, radius, edges)
 
 
+def cover_area(radius: float, edges: int) -> float:
+    """A(Cov): the area of one buoy's coverage polygon, a regular ``edges``-gon of circumradius ``radius``."""
+    return 0.5 * edges * radius**2 * math.sin(2 * math.pi / edges)
+
+
 def coverage_ceiling(region_area: float, n_agents: int, radius: float, edges: int) -> float:
     """min(1, N·A(Cov)/A(Reg)) (SPEC §7): 0.780 for 9 agents, R = 0.5, 30 edges, 9 m²."""
-    cov_area = 0.5 * edges * radius**2 * math.sin(2 * math.pi / edges)
-    return min(1.0, n_agents * cov_area / region_area)
+    return min(1.0, n_agents * cover_area(radius, edges) / region_area)
 
 
 def mean_nearest_neighbour(xy: np.ndarray) -> np.ndarray:

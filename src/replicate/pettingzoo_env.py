@@ -203,10 +203,13 @@ def reachable_bounds(core: CoverageEnv) -> tuple[np.ndarray, np.ndarray]:
 
 
 def local_bounds(core: CoverageEnv) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds of the local observation (``sensors.columns``): velocity within ±v_max, a heard buoy within the
-    communication range, its mask in [0, 1], a shore distance in [0, ray range]."""
+    """Bounds of the local observation (``sensors.columns``): velocity within ±v_max (over the ground, plus the
+    current's top speed), a heard buoy within the communication range, its mask in [0, 1], a shore distance in
+    [0, ray range]."""
     sc = core.sensor_config
     v_max = top_speed(core)
+    if sc.velocity == "ground" and core.current is not None:
+        v_max += core.current.max_speed()
     k = sc.neighbours
     lo = np.concatenate([[-v_max] * 2, [-sc.comm_range] * 2 * k, [0.0] * k, [0.0] * sc.rays])
     hi = np.concatenate([[v_max] * 2, [sc.comm_range] * 2 * k, [1.0] * k, [sc.ray_range] * sc.rays])

@@ -15,13 +15,13 @@ from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
 
-def own_velocity(vel: np.ndarray, drift: np.ndarray | float = 0.0) -> np.ndarray:
+def own_velocity(vel: np.ndarray, drift: np.ndarray | None = None) -> np.ndarray:
     """The buoy's velocity in the world frame, [E, N, 2] → [E, N, 2]: through the water (``vel``, what a log
     reads), or over the ground with the water's ``drift`` [E, N, 2] added (what a GPS reads; in still water the
     same numbers). Over the ground a buoy feels a current: the general policy reads it so (``velocity: ground``).
     A buoy the water holds against the shore reads the drift too, where a GPS would read the wall's stop: the
     sum is taken before the wall, as ``env.integrate`` moves the buoy."""
-    return vel + drift if np.ndim(drift) else vel
+    return vel if drift is None else vel + drift
 
 
 def neighbours(pos: np.ndarray, k: int, comm_range: float, alive: np.ndarray | None = None
@@ -142,10 +142,10 @@ def describe(config) -> list[dict]:
 
 def local_observation(pos: np.ndarray, vel: np.ndarray, segments: np.ndarray, directions: np.ndarray, k: int,
                       comm_range: float, ray_range: float, alive: np.ndarray | None = None,
-                      drift: np.ndarray | float = 0.0) -> np.ndarray:
+                      drift: np.ndarray | None = None) -> np.ndarray:
     """Every sensor of every buoy, concatenated in the order of ``columns``: [E, N, 2 + 3k + rays] float32.
-    ``drift``: the water's velocity at each buoy [E, N, 2], for a velocity over the ground (0.0: through the
-    water)."""
+    ``drift``: the water's velocity at each buoy [E, N, 2], for a velocity over the ground (None: through the
+    water, or still water)."""
     rel, mask = neighbours(pos, k, comm_range, alive)
     e, n = pos.shape[:2]
     return np.concatenate([own_velocity(vel, drift), rel.reshape(e, n, 2 * k), mask,

@@ -11,7 +11,6 @@ their worlds here, so the baselines are tuned on exactly the worlds the policy t
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +18,7 @@ import numpy as np
 from .config import GeneralConfig, Params, region_world
 from .env import CoverageEnv
 from .lakes import lake_region, training
+from .metrics import cover_area
 from .regions import Region, make_region
 
 
@@ -44,8 +44,7 @@ def world_env(params: Params, gc: GeneralConfig, region: Region, n_agents: int, 
 
 def coverage_area(params: Params) -> float:
     """A(Cov): the area of one buoy's coverage polygon (a regular ``edges``-gon of circumradius R)."""
-    c = params.coverage
-    return 0.5 * c.edges * c.radius**2 * math.sin(2 * math.pi / c.edges)
+    return cover_area(params.coverage.radius, params.coverage.edges)
 
 
 def horizon(gc: GeneralConfig, region: Region, region_area: float) -> int:
