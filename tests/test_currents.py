@@ -22,16 +22,19 @@ def test_a_buoy_at_rest_drifts_with_a_uniform_current(params, regions):
 
 
 def test_a_gps_velocity_feels_the_current_and_a_log_does_not(params, regions):
-    """``sensors.velocity``: over the ground (GPS) a buoy reads its velocity through the water plus the drift that
-    carried it; through the water (a log) the drift is invisible. In still water both read the same numbers."""
+    """``sensors.velocity``: over the ground (GPS) a buoy reads its displacement over the last step / dt, its
+    velocity through the water plus the drift in open water; through the water (a log) the drift is invisible.
+    Lost buoys read 0, a new episode starts at rest, and at the shore the reading is the buoy's actual motion."""
     from replicate.config import SensorsConfig
 
-    envs = {frame: CoverageEnv(regions["square"], params.world, params.coverage, n_envs=2, observation="local",
-                               sensors_config=SensorsConfig(velocity=frame), wall=True, seed=0)
-            for frame in ("water", "ground")}
+    def make(frame, wall=False):
+        return CoverageEnv(regions["square"], params.world, params.coverage, n_envs=2, observation="local",
+                           sensors_config=SensorsConfig(velocity=frame), wall=wall, seed=0)
+
+    envs = {frame: make(frame) for frame in ("water", "ground")}  # the open square: no shore to stop at
     action = np.random.default_rng(1).uniform(-1, 1, (2, 9, 2))
     still = [env.reset(start="random") is not None and env.step(action).obs for env in envs.values()]
-    np.testing.assert_array_equal(still[0], still[1])
+    np.testing.assert_allclose(still[0], still[1], atol=1e-6)  # in still water both read the same velocity
     drift = np.array([[0.3, 0.0], [0.0, -0.2]])
     for env in envs.values():
         env.reset(start="random")
@@ -45,9 +48,16 @@ def test_a_gps_velocity_feels_the_current_and_a_log_does_not(params, regions):
     reading = gps.step(action).obs[..., :2]
     np.testing.assert_array_equal(reading[lost], 0.0)
     np.testing.assert_allclose(reading[~lost] - gps.vel[~lost], np.repeat(drift, 6, axis=0), atol=1e-6)
-    gps.set_current(None)  # the next episode in still water reads the water's numbers again
-    assert not gps.reset(start="random")[..., :2].any()
-    np.testing.assert_array_equal(gps.step(action).obs[..., :2], gps.vel.astype(np.float32))
+    gps.set_current(None)
+    assert not gps.reset(start="random")[..., :2].any()  # released at rest
+    walled = make("ground", wall=True)  # pushed onto the shore by the water, a buoy reads how it moved
+    walled.reset(start="random")
+    walled.set_current(Current.uniform([[2.0, 0.0], [2.0, 0.0]]))
+    for _ in range(30):
+        before = walled.pos.copy()
+        reading = walled.step(np.zeros((2, 9, 2))).obs[..., :2]
+        np.testing.assert_allclose(reading, (walled.pos - before) / params.world.dt, atol=1e-5)
+    assert np.abs(reading[..., 0]).max() < 0.1  # held against the east shore, it no longer moves east
 
 
 def test_the_vortex_turns_at_its_peak_speed_one_core_radius_out():

@@ -185,6 +185,29 @@ def test_a_gps_velocity_in_a_drift_stays_in_the_observation_space(shore):
         CoverageParallelEnv("square", observation="local", sensors_config=SensorsConfig(velocity="gps"))
 
 
+def test_the_uncovered_water_sensor_passes_the_api_and_seed_tests():
+    """``sensors.uncovered``: eight more columns, each a share in [0, 1], through losses and a drift."""
+    from replicate.config import SensorsConfig
+
+    def make():
+        return CoverageParallelEnv("bedok", observation="local", shore="wall", episode_length=20, start="random",
+                                   lose=3, current=(0.6, 0.0),
+                                   sensors_config=SensorsConfig(velocity="ground", uncovered=(0.25, 0.5, 0.75, 1.0)))
+
+    parallel_api_test(make(), num_cycles=40)
+    parallel_seed_test(make)
+    env = make()
+    assert env.observation_space("buoy_0").shape == (30,)
+    obs, _ = env.reset(seed=1)
+    shares = []
+    while env.agents:
+        assert all(env.observation_space(a).contains(o) for a, o in obs.items())
+        shares += [o[22:] for o in obs.values()]
+        obs, *_ = env.step({a: env.action_space(a).sample() for a in env.agents})
+    shares = np.concatenate(shares)
+    assert shares.min() < 1.0 and shares.max() == 1.0  # buoys covering each other's water, and open water
+
+
 def test_a_small_coverage_radius_is_resolved_as_finely_as_the_papers(params):
     from replicate.pettingzoo_env import scaled_coverage
 

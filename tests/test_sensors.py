@@ -119,3 +119,80 @@ def test_lost_buoys_are_not_heard(params, regions):
     live = env.live_positions()
     terms = env.geometry.cover_terms(live)
     np.testing.assert_allclose(env.coverage_fraction(), env.geometry.union_area(live, terms.area) / 9.0)
+
+
+def uncovered_reference(pos, alive, water, directions, radii, radius, comm_range):
+    """``uncovered_water`` by shapely and a loop: a point counts when the straight line from the buoy to it stays in
+    the water and no other buoy in service within ``comm_range`` of the buoy is within ``radius`` of it."""
+    e, n = pos.shape[:2]
+    out = np.zeros((e, n, len(directions)))
+    for b in range(e):
+        for i in range(n):
+            heard = [j for j in range(n) if j != i and alive[b, j]
+                     and np.linalg.norm(pos[b, j] - pos[b, i]) <= comm_range]
+            for r, d in enumerate(directions):
+                free = 0
+                for rad in radii:
+                    point = pos[b, i] + rad * d
+                    wet = water.covers(shapely.LineString([pos[b, i], point]))
+                    free += wet and all(np.linalg.norm(point - pos[b, j]) > radius for j in heard)
+                out[b, i, r] = free / len(radii)
+    return out
+
+
+def test_uncovered_water_matches_shapely_and_a_loop(regions):
+    """In a concave lake (Bedok) and a square with an island, with lost buoys and a communication range shorter
+    than the lake, the share of uncovered water along each ray agrees with shapely's segment-in-water test and a
+    loop over the buoys heard."""
+    rng = np.random.default_rng(11)
+    radii = (0.25, 0.5, 0.75, 1.0)
+    for water in (regions["bedok"].polygon, box(0, 0, 3, 3).difference(box(1.2, 1.2, 1.8, 1.8))):
+        pos = points_inside(water, 4 * 12, rng).reshape(4, 12, 2)
+        alive = rng.uniform(size=(4, 12)) > 0.25
+        directions = sensors.ray_directions(8)
+        shore = sensors.shore_distances(pos, sensors.shore_segments(water), directions, 2.0)
+        ours = sensors.uncovered_water(pos, shore, directions, radii, 0.5, 1.5, alive)
+        ref = uncovered_reference(pos, alive, water, directions, radii, 0.5, 1.5)
+        assert ours.shape == (4, 12, 8)
+        np.testing.assert_array_equal(ours, ref)
+        assert 0 < ours.mean() < 1, "the draw has covered, uncovered and dry points"
+
+
+def test_uncovered_water_marks_a_neighbours_disc_and_forgets_a_lost_one():
+    """A lone buoy in open water reads 1 on every ray; a buoy 0.5 m east covers every point of the east ray (0.25
+    to 1.0 m out, all within R = 0.5 of it) and, lost, covers none."""
+    water = box(0, 0, 10, 10)
+    pos = np.array([[[5.0, 5.0], [5.5, 5.0]]])
+    directions = sensors.ray_directions(4)  # east, north, west, south
+    shore = sensors.shore_distances(pos, sensors.shore_segments(water), directions, 2.0)
+    radii = (0.25, 0.5, 0.75, 1.0)
+    both = sensors.uncovered_water(pos, shore, directions, radii, 0.5, 2.0)
+    assert both[0, 0, 0] == 0.0 and both[0, 1, 2] == 0.0, "each covers the other's side"
+    assert both[0, 0, 2] == 1.0 and both[0, 0, 1] == 1.0, "away from it and across it (just outside its disc): free"
+    lost = sensors.uncovered_water(pos, shore, directions, radii, 0.5, 2.0, np.array([[True, False]]))
+    np.testing.assert_array_equal(lost[0, 0], [1.0, 1.0, 1.0, 1.0])
+    far = sensors.uncovered_water(pos, shore, directions, radii, 0.5, 0.4)
+    np.testing.assert_array_equal(far[0, 0], [1.0, 1.0, 1.0, 1.0])  # a buoy out of range is not heard
+
+
+def test_the_uncovered_sensor_adds_its_columns_and_is_refused_beyond_the_rays(params, regions):
+    from replicate.config import SensorsConfig
+    from replicate.env import CoverageEnv, observation_columns
+
+    sc = SensorsConfig(velocity="ground", uncovered=(0.25, 0.5, 0.75, 1.0))
+    names = observation_columns("local", sc)
+    assert len(names) == 30 and names[-8] == "uncovered_0deg" and names[-9] == "shore_315deg"
+    listed = sensors.describe(sc)  # the exported policy's metadata
+    assert [d["sensor"] for d in listed][-1] == "uncovered_water" and listed[-1]["columns"] == names[-8:]
+    assert sum(len(d["columns"]) for d in listed) == 30
+    env = CoverageEnv(regions["bedok"], params.world, params.coverage, n_envs=2, observation="local",
+                      sensors_config=sc, wall=True, seed=3)
+    obs = env.reset(start="random")
+    plain = CoverageEnv(regions["bedok"], params.world, params.coverage, n_envs=2, observation="local",
+                        sensors_config=SensorsConfig(velocity="ground"), wall=True, seed=3).reset(start="random")
+    assert obs.shape == (2, 9, 30) and env.obs_dim == 30
+    np.testing.assert_array_equal(obs[..., :22], plain)  # the other sensors read the same
+    assert ((obs[..., 22:] >= 0) & (obs[..., 22:] <= 1)).all()
+    with pytest.raises(ValueError, match="uncovered radii"):
+        CoverageEnv(regions["bedok"], params.world, params.coverage, observation="local",
+                    sensors_config=SensorsConfig(uncovered=(0.5, 2.5)))

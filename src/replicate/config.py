@@ -223,13 +223,15 @@ class MADDPGConfig:
 @dataclass(frozen=True)
 class SensorsConfig:
     """What a buoy senses with ``observation: local`` (``sensors.py``): its velocity, the ``neighbours`` nearest
-    buoys it hears within ``comm_range`` m, and the shore along ``rays`` compass directions up to ``ray_range`` m."""
+    buoys it hears within ``comm_range`` m, the shore along ``rays`` compass directions up to ``ray_range`` m and,
+    with ``uncovered``, the share of water along each ray that no buoy it hears covers."""
 
     neighbours: int = 4
     comm_range: float = 2.0
     rays: int = 8
     ray_range: float = 2.0
     velocity: Literal["water", "ground"] = "water"  # through the water (a log) or over the ground (GPS)
+    uncovered: tuple[float, ...] = ()  # m: radii of ``uncovered_water``'s points along each ray; () = no such sensor
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ def observation_columns(observation: str, sensors_config: SensorsConfig | None =
     """The names of an observation's columns, in order (the exported policy's layout)."""
     if observation == "local":
         sc = sensors_config or SensorsConfig()
-        return sensors.columns(sc.neighbours, sc.rays)
+        return sensors.columns(sc.neighbours, sc.rays, bool(sc.uncovered))
     return ["x", "y"] if observation == "position" else ["x", "y", "vx", "vy"]
 
 
@@ -106,6 +106,9 @@ class CoverageEnv:
             raise ValueError("n_envs and n_agents must be at least 1")
         if sensors_config is not None and sensors_config.velocity not in ("water", "ground"):
             raise ValueError(f"sensors velocity must be 'water' or 'ground', got {sensors_config.velocity!r}")
+        if sensors_config is not None and any(not 0 < r <= sensors_config.ray_range for r in sensors_config.uncovered):
+            raise ValueError(f"sensors uncovered radii must lie in (0, ray_range = {sensors_config.ray_range}] m "
+                             f"(the water along a ray is known up to its range), got {list(sensors_config.uncovered)}")
         self.region = region
         self.world = world
         self.coverage = coverage
@@ -130,7 +133,7 @@ class CoverageEnv:
         self.wall = wall
         self.shore = None  # the shore's edges on a grid (``shore.Shoreline``), with the wall
         self.current = None  # the water's drift (``currents.Current``), None: still water
-        self.drift = None  # the water's velocity that carried each buoy in the last step, [E, N, 2] (None: none)
+        self.ground_vel = None  # each buoy's displacement over the last step / dt, [E, N, 2]: what a GPS reads
         if wall:
             self.shore = shoreline(region.polygon, self.step_reach())
         if geofence is None:
@@ -185,7 +188,7 @@ class CoverageEnv:
         starts = [self.sample_start(per_block, rng) for rng in self.rngs]
         self.pos = np.concatenate(starts).reshape(self.n_envs, self.n_agents, 2)
         self.vel = np.zeros_like(self.pos)
-        self.drift = None
+        self.ground_vel = np.zeros_like(self.pos)
         self.alive = None
         self.t = 0
         return self.observe()
@@ -214,9 +217,10 @@ class CoverageEnv:
         velocity, the buoys heard, the shore's distance along rays). → [E, N, obs_dim] float32."""
         if self.observation == "local":
             sc = self.sensor_config
-            return sensors.local_observation(self.pos, self.vel, self.shore_edges, self.ray_directions,
+            vel = self.ground_vel if sc.velocity == "ground" else self.vel
+            return sensors.local_observation(self.pos, vel, self.shore_edges, self.ray_directions,
                                              sc.neighbours, sc.comm_range, sc.ray_range, self.alive,
-                                             self.drift if sc.velocity == "ground" else None)
+                                             sc.uncovered, self.coverage.radius)
         obs = self.pos if self.observation == "position" else np.concatenate([self.pos, self.vel], axis=-1)
         return obs.astype(np.float32)
 
@@ -251,7 +255,7 @@ class CoverageEnv:
         drift = 0.0 if self.current is None else self.current.at(self.pos)  # the water carries the buoys
         if self.current is not None and self.alive is not None:
             drift = np.where(self.alive[..., None], drift, 0.0)
-        self.drift = None if self.current is None else drift
+        start = self.pos
         end = self.pos + (self.vel + drift) * w.dt
         if self.wall:
             pos, vel = wall_step(self.region.polygon, self.pos.reshape(-1, 2), end.reshape(-1, 2),
@@ -263,6 +267,7 @@ class CoverageEnv:
             clamped = np.clip(self.pos, lo, hi)
             self.vel = np.where(clamped != self.pos, 0.0, self.vel)
             self.pos = clamped
+        self.ground_vel = (self.pos - start) / w.dt  # the drift, the wall's stop and the fence's included
 
     def step(self, action: np.ndarray) -> StepResult:
         """Apply actions [E, N, 2] in [-1, 1] and return the new observation and the rewards."""

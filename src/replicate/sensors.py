@@ -15,13 +15,11 @@ from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
 
-def own_velocity(vel: np.ndarray, drift: np.ndarray | None = None) -> np.ndarray:
-    """The buoy's velocity in the world frame, [E, N, 2] → [E, N, 2]: through the water (``vel``, what a log
-    reads), or over the ground with the water's ``drift`` [E, N, 2] added (what a GPS reads; in still water the
-    same numbers). Over the ground a buoy feels a current: the general policy reads it so (``velocity: ground``).
-    A buoy the water holds against the shore reads the drift too, where a GPS would read the wall's stop: the
-    sum is taken before the wall, as ``env.integrate`` moves the buoy."""
-    return vel if drift is None else vel + drift
+def own_velocity(vel: np.ndarray) -> np.ndarray:
+    """The buoy's velocity in the world frame, [E, N, 2] → [E, N, 2]: through the water (what a log reads) or over
+    the ground (its displacement over the last step / dt, what a GPS reads: the drift and the shore's stop
+    included), as ``env.observe`` passes it for ``SensorsConfig.velocity``."""
+    return vel
 
 
 def neighbours(pos: np.ndarray, k: int, comm_range: float, alive: np.ndarray | None = None
@@ -118,35 +116,87 @@ def shore_distances_reference(pos: np.ndarray, water: Polygon, directions: np.nd
     return np.minimum(dist, max_range).reshape(*pos.shape[:-1], len(directions))
 
 
-def columns(k: int, rays: int) -> list[str]:
-    """Names of ``local_observation``'s columns, in order."""
+@numba.njit(cache=True)
+def _uncovered(pos, alive, shore, offsets, radii, radius, comm_range, out):  # pragma: no cover - compiled
+    e, n, rays, points = pos.shape[0], pos.shape[1], offsets.shape[0], offsets.shape[1]
+    for b in range(e):
+        for i in range(n):
+            for r in range(rays):
+                free = 0
+                for p in range(points):
+                    if not radii[p] < shore[b, i, r]:
+                        continue  # past the ray's first shore crossing: not known to be water
+                    covered = False
+                    for j in range(n):
+                        if j == i or not alive[b, j]:
+                            continue
+                        rx, ry = pos[b, j, 0] - pos[b, i, 0], pos[b, j, 1] - pos[b, i, 1]
+                        if np.sqrt(rx * rx + ry * ry) > comm_range:
+                            continue  # not heard
+                        gx, gy = offsets[r, p, 0] - rx, offsets[r, p, 1] - ry
+                        if gx * gx + gy * gy <= radius * radius:
+                            covered = True
+                            break
+                    free += not covered
+                out[b, i, r] = free / points
+
+
+def uncovered_water(pos: np.ndarray, shore: np.ndarray, directions: np.ndarray, radii: tuple[float, ...],
+                    radius: float, comm_range: float, alive: np.ndarray | None = None) -> np.ndarray:
+    """The share of water no other buoy covers along each ray: of the points at ``radii`` m from the buoy in each
+    direction, those before the ray's first shore crossing (water, read from ``shore``, the buoy's
+    ``shore_distances``) and farther than ``radius`` (the coverage range R) from every other buoy it hears (all
+    within ``comm_range``, not only the k nearest it lists). Points on the ring at R mark where the buoy's own
+    disc adds water to the fleet's union; points beyond it, where uncovered water lies. pos: [E, N, 2];
+    shore: [E, N, rays]; directions: [rays, 2] → [E, N, rays] in [0, 1]."""
+    r = np.asarray(radii, dtype=np.float64)
+    offsets = np.ascontiguousarray(r[None, :, None] * directions[:, None, :])  # [rays, P, 2], relative to the buoy
+    live = np.ones(pos.shape[:2], dtype=np.bool_) if alive is None else np.ascontiguousarray(alive, dtype=np.bool_)
+    out = np.empty(shore.shape)
+    _uncovered(np.ascontiguousarray(pos, dtype=np.float64), live, np.ascontiguousarray(shore, dtype=np.float64),
+               offsets, r, float(radius), float(comm_range), out)
+    return out
+
+
+def columns(k: int, rays: int, uncovered: bool = False) -> list[str]:
+    """Names of ``local_observation``'s columns, in order (``uncovered``: with ``uncovered_water``'s)."""
+    compass = [round(360 * r / rays) for r in range(rays)]
     return (["vx", "vy"] + [f"neighbour{j}_{c}" for j in range(k) for c in ("dx", "dy")]
-            + [f"neighbour{j}_heard" for j in range(k)] + [f"shore_{round(360 * r / rays)}deg" for r in range(rays)])
+            + [f"neighbour{j}_heard" for j in range(k)] + [f"shore_{d}deg" for d in compass]
+            + ([f"uncovered_{d}deg" for d in compass] if uncovered else []))
 
 
 def describe(config) -> list[dict]:
     """Each sensor of ``local_observation`` as the exported policy's metadata lists it: its function, its columns,
     its settings (``config``: a ``config.SensorsConfig``)."""
     k, rays = config.neighbours, config.rays
-    names = columns(k, rays)
-    return [
+    names = columns(k, rays, bool(config.uncovered))
+    described = [
         {"sensor": "own_velocity", "columns": names[:2], "shape": "[E, N, 2]", "units": "m/s",
          "frame": "over the ground (GPS)" if config.velocity == "ground" else "through the water (log)"},
         {"sensor": "neighbours", "columns": names[2:2 + 3 * k], "shape": f"[E, N, {k}, 2] and mask [E, N, {k}]",
          "k": k, "comm_range_m": config.comm_range, "units": "m, relative to the buoy; mask 1 = heard"},
-        {"sensor": "shore_distances", "columns": names[2 + 3 * k:], "shape": f"[E, N, {rays}]",
+        {"sensor": "shore_distances", "columns": names[2 + 3 * k:2 + 3 * k + rays], "shape": f"[E, N, {rays}]",
          "rays": rays, "ray_range_m": config.ray_range, "units": "m, capped at ray_range_m",
          "directions": "compass, east first, counter-clockwise"},
     ]
+    if config.uncovered:
+        described.append({"sensor": "uncovered_water", "columns": names[2 + 3 * k + rays:], "shape": f"[E, N, {rays}]",
+                          "radii_m": list(config.uncovered), "comm_range_m": config.comm_range,
+                          "units": "share of the points along each ray that are water no other buoy heard covers",
+                          "directions": "those of shore_distances"})
+    return described
 
 
 def local_observation(pos: np.ndarray, vel: np.ndarray, segments: np.ndarray, directions: np.ndarray, k: int,
                       comm_range: float, ray_range: float, alive: np.ndarray | None = None,
-                      drift: np.ndarray | None = None) -> np.ndarray:
-    """Every sensor of every buoy, concatenated in the order of ``columns``: [E, N, 2 + 3k + rays] float32.
-    ``drift``: the water's velocity at each buoy [E, N, 2], for a velocity over the ground (None: through the
-    water, or still water)."""
+                      uncovered: tuple[float, ...] = (), radius: float = 0.0) -> np.ndarray:
+    """Every sensor of every buoy, concatenated in the order of ``columns``: [E, N, 2 + 3k + rays] float32, and
+    ``rays`` more with ``uncovered`` (the radii of ``uncovered_water``'s points; ``radius``: the coverage range)."""
     rel, mask = neighbours(pos, k, comm_range, alive)
     e, n = pos.shape[:2]
-    return np.concatenate([own_velocity(vel, drift), rel.reshape(e, n, 2 * k), mask,
-                           shore_distances(pos, segments, directions, ray_range)], axis=-1).astype(np.float32)
+    shore = shore_distances(pos, segments, directions, ray_range)
+    parts = [own_velocity(vel), rel.reshape(e, n, 2 * k), mask, shore]
+    if uncovered:
+        parts.append(uncovered_water(pos, shore, directions, uncovered, radius, comm_range, alive))
+    return np.concatenate(parts, axis=-1).astype(np.float32)

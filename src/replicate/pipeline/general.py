@@ -27,8 +27,9 @@ from ..lakes import held_out, lake_region
 from ..regions import Region, make_region
 from ..train import training_process
 
-GENERAL_VERSION = 2  # raised when the general training's arithmetic changes: older runs are trained again
+GENERAL_VERSION = 3  # raised when the general training's arithmetic changes: older runs are trained again
 # 2: the update runs on the buoys in service only and applies φ's last layer to the pooled mean (float rounding)
+# 3: a velocity over the ground is the buoy's displacement over the last step / dt (the shore's stop included)
 KEPT_POLICY = "general.pt"  # the best-validated seed's policy, the one a user deploys
 SEED_POLICY = "policy.pt"  # each seed's exported policy, in its run folder
 
@@ -36,6 +37,8 @@ SEED_POLICY = "policy.pt"  # each seed's exported policy, in its run folder
 def general_identity(params, seed: int) -> dict:
     """What makes two general runs the same run: the version, the seed and every value they train with."""
     trained = {k: v for k, v in to_dict(params.general).items() if k not in ("seeds", "suite")}  # not its evaluation
+    if not trained["sensors"]["uncovered"]:  # a sensor added after the first runs: off, they stay the same runs
+        del trained["sensors"]["uncovered"]
     return {"general_version": GENERAL_VERSION, "seed": seed, "general": trained,
             "world": to_dict(params.world), "coverage": to_dict(params.coverage),
             "cr_reward": to_dict(params.cr_reward), "regions": to_dict(params.regions)}
