@@ -193,6 +193,8 @@ def test_the_uncovered_sensor_adds_its_columns_and_is_refused_beyond_the_rays(pa
     assert obs.shape == (2, 9, 30) and env.obs_dim == 30
     np.testing.assert_array_equal(obs[..., :22], plain)  # the other sensors read the same
     assert ((obs[..., 22:] >= 0) & (obs[..., 22:] <= 1)).all()
-    with pytest.raises(ValueError, match="uncovered radii"):
-        CoverageEnv(regions["bedok"], params.world, params.coverage, observation="local",
-                    sensors_config=SensorsConfig(uncovered=(0.5, 2.5)))
+    for beyond in ((0.5, 2.5), (1.0, 2.0)):  # a point at the rays' range cannot be known to be water
+        with pytest.raises(ValueError, match="uncovered radii"):
+            CoverageEnv(regions["bedok"], params.world, params.coverage, observation="local",
+                        sensors_config=SensorsConfig(uncovered=beyond))
+    assert SensorsConfig(uncovered=[0.5, 1.0]) == sc.__class__(uncovered=(0.5, 1.0))  # as a policy's metadata gives it

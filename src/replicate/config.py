@@ -233,6 +233,9 @@ class SensorsConfig:
     velocity: Literal["water", "ground"] = "water"  # through the water (a log) or over the ground (GPS)
     uncovered: tuple[float, ...] = ()  # m: radii of ``uncovered_water``'s points along each ray; () = no such sensor
 
+    def __post_init__(self):  # read back from a policy's metadata (JSON), the radii arrive as a list
+        object.__setattr__(self, "uncovered", tuple(self.uncovered))
+
 
 @dataclass(frozen=True)
 class AlgoConfig:

@@ -106,9 +106,9 @@ class CoverageEnv:
             raise ValueError("n_envs and n_agents must be at least 1")
         if sensors_config is not None and sensors_config.velocity not in ("water", "ground"):
             raise ValueError(f"sensors velocity must be 'water' or 'ground', got {sensors_config.velocity!r}")
-        if sensors_config is not None and any(not 0 < r <= sensors_config.ray_range for r in sensors_config.uncovered):
-            raise ValueError(f"sensors uncovered radii must lie in (0, ray_range = {sensors_config.ray_range}] m "
-                             f"(the water along a ray is known up to its range), got {list(sensors_config.uncovered)}")
+        if sensors_config is not None and any(not 0 < r < sensors_config.ray_range for r in sensors_config.uncovered):
+            raise ValueError(f"sensors uncovered radii must lie in (0, ray_range = {sensors_config.ray_range}) m "
+                             f"(water is known only short of it), got {list(sensors_config.uncovered)}")
         self.region = region
         self.world = world
         self.coverage = coverage
@@ -214,7 +214,8 @@ class CoverageEnv:
 
     def observe(self) -> np.ndarray:
         """Own position (paper), own position and velocity, or the local sensors (``sensors.local_observation``:
-        velocity, the buoys heard, the shore's distance along rays). → [E, N, obs_dim] float32."""
+        velocity, the buoys heard, the shore's distance along rays and, with ``SensorsConfig.uncovered``, the
+        uncovered water along them). → [E, N, obs_dim] float32."""
         if self.observation == "local":
             sc = self.sensor_config
             vel = self.ground_vel if sc.velocity == "ground" else self.vel

@@ -143,8 +143,8 @@ def _uncovered(pos, alive, shore, offsets, radii, radius, comm_range, out):  # p
 
 def uncovered_water(pos: np.ndarray, shore: np.ndarray, directions: np.ndarray, radii: tuple[float, ...],
                     radius: float, comm_range: float, alive: np.ndarray | None = None) -> np.ndarray:
-    """The share of water no other buoy covers along each ray: of the points at ``radii`` m from the buoy in each
-    direction, those before the ray's first shore crossing (water, read from ``shore``, the buoy's
+    """How much of each ray's water no other buoy covers: the share of the points at ``radii`` m from the buoy in
+    each direction that lie before the ray's first shore crossing (water, read from ``shore``, the buoy's
     ``shore_distances``) and farther than ``radius`` (the coverage range R) from every other buoy it hears (all
     within ``comm_range``, not only the k nearest it lists). Points on the ring at R mark where the buoy's own
     disc adds water to the fleet's union; points beyond it, where uncovered water lies. pos: [E, N, 2];

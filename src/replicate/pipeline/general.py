@@ -37,7 +37,7 @@ SEED_POLICY = "policy.pt"  # each seed's exported policy, in its run folder
 def general_identity(params, seed: int) -> dict:
     """What makes two general runs the same run: the version, the seed and every value they train with."""
     trained = {k: v for k, v in to_dict(params.general).items() if k not in ("seeds", "suite")}  # not its evaluation
-    if not trained["sensors"]["uncovered"]:  # a sensor added after the first runs: off, they stay the same runs
+    if not trained["sensors"]["uncovered"]:  # an optional sensor, off: a run's identity names only what it used
         del trained["sensors"]["uncovered"]
     return {"general_version": GENERAL_VERSION, "seed": seed, "general": trained,
             "world": to_dict(params.world), "coverage": to_dict(params.coverage),
