@@ -1,5 +1,7 @@
 """The local sensors of a buoy (``replicate.sensors``) against shapely and a per-buoy loop."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import shapely
@@ -198,3 +200,7 @@ def test_the_uncovered_sensor_adds_its_columns_and_is_refused_beyond_the_rays(pa
             CoverageEnv(regions["bedok"], params.world, params.coverage, observation="local",
                         sensors_config=SensorsConfig(uncovered=beyond))
     assert SensorsConfig(uncovered=[0.5, 1.0]) == sc.__class__(uncovered=(0.5, 1.0))  # as a policy's metadata gives it
+    from replicate.config import ConfigError, load_params
+
+    with pytest.raises(ConfigError, match="uncovered radii"):  # params.yaml's value is refused as it is read
+        load_params(Path(__file__).parents[1] / "params.yaml", {"general.sensors.uncovered": [3.0]})

@@ -233,8 +233,13 @@ class SensorsConfig:
     velocity: Literal["water", "ground"] = "water"  # through the water (a log) or over the ground (GPS)
     uncovered: tuple[float, ...] = ()  # m: radii of ``uncovered_water``'s points along each ray; () = no such sensor
 
-    def __post_init__(self):  # read back from a policy's metadata (JSON), the radii arrive as a list
-        object.__setattr__(self, "uncovered", tuple(self.uncovered))
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "uncovered", tuple(self.uncovered))  # from a policy's JSON metadata: a list
+        if self.velocity not in ("water", "ground"):
+            raise ConfigError(f"sensors velocity must be 'water' or 'ground', got {self.velocity!r}")
+        if any(not 0 < r < self.ray_range for r in self.uncovered):
+            raise ConfigError(f"sensors uncovered radii must lie in (0, ray_range = {self.ray_range}) m (water is "
+                              f"known only short of it), got {list(self.uncovered)}")
 
 
 @dataclass(frozen=True)

@@ -104,11 +104,6 @@ class CoverageEnv:
             raise ValueError(f"union_credit must be 'shared' or 'difference', got {union_credit!r}")
         if n_envs < 1 or world.n_agents < 1:
             raise ValueError("n_envs and n_agents must be at least 1")
-        if sensors_config is not None and sensors_config.velocity not in ("water", "ground"):
-            raise ValueError(f"sensors velocity must be 'water' or 'ground', got {sensors_config.velocity!r}")
-        if sensors_config is not None and any(not 0 < r < sensors_config.ray_range for r in sensors_config.uncovered):
-            raise ValueError(f"sensors uncovered radii must lie in (0, ray_range = {sensors_config.ray_range}) m "
-                             f"(water is known only short of it), got {list(sensors_config.uncovered)}")
         self.region = region
         self.world = world
         self.coverage = coverage
