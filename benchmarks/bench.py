@@ -210,7 +210,8 @@ def general_agent_and_batch(params) -> tuple[SharedMADDPG, FleetBatch]:
     """A fresh general policy's learner and one minibatch as its training samples it: ``general.batch_size``
     transitions padded to the largest training fleet, each of a fleet size drawn from the training worlds'."""
     gc = params.general
-    od = len(observation_columns("local", gc.sensors))
+    columns = observation_columns("local", gc.sensors)
+    od = len(columns)
     fleets = [n for _, n in baseline_worlds(params, gc)]
     g = torch.Generator().manual_seed(0)
     b, n_max = gc.batch_size, max(fleets)
@@ -223,7 +224,7 @@ def general_agent_and_batch(params) -> tuple[SharedMADDPG, FleetBatch]:
     batch = FleetBatch(obs=normal(b, n_max, od), act=normal(b, n_max, 2).tanh(), rew=normal(b, n_max),
                        next_obs=normal(b, n_max, od), pos=normal(b, n_max, 2), next_pos=normal(b, n_max, 2),
                        live=live, next_live=live, disc=torch.full((b,), gc.gamma))
-    return SharedMADDPG(od, 2, gc.learner, seed=0), batch
+    return SharedMADDPG(od, 2, gc.learner, seed=0, columns=columns), batch
 
 
 def update_gflop(agent, batch) -> float:
@@ -472,7 +473,8 @@ class CompiledSharedMADDPG(SharedMADDPG):
 def general_update_section(params, floors: dict[str, float]) -> None:
     print("== 6. one update of the general policy (shared actor, pooled critic), at its training shapes ==")
     agent, batch = general_agent_and_batch(params)
-    compiled = CompiledSharedMADDPG(agent.actor.net[0].in_features, 2, params.general.learner, seed=0)
+    columns = observation_columns("local", params.general.sensors)
+    compiled = CompiledSharedMADDPG(len(columns), 2, params.general.learner, seed=0, columns=columns)
     t = time.perf_counter()
     compiled.update(batch)
     compile_s = time.perf_counter() - t

@@ -43,7 +43,8 @@ def test_a_run_writes_its_actor_curve_and_summary(two_runs):
     saved = torch.load(run / "actor.pt")
     assert len(saved["columns"]) == 22 and saved["sensors"]["neighbours"] == 4
     assert saved["sensors"]["velocity"] == "ground"  # over the ground, as params.yaml reads it
-    actor = SharedActor(22, 2, saved["hidden"])
+    assert saved["symmetry"] == "d4"  # the actor averaged over the compass's turns, as params.yaml trains it
+    actor = SharedActor(22, 2, saved["hidden"], saved["symmetry"], saved["columns"])
     actor.load_state_dict(saved["actor"])
     for n in (5, 9, 30):  # one network for any fleet
         assert actor(torch.zeros(3, n, 22))[0].shape == (3, n, 2)

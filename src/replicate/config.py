@@ -133,6 +133,10 @@ def check_general(g: GeneralConfig, regions: dict) -> None:
     within(g.learner.tau, "general.learner.tau", 0, 1, open_lo=True)
     within(g.learner.pool_range, "general.learner.pool_range", 0)
     within(g.learner.pool_neighbours, "general.learner.pool_neighbours", 0, MAX_AGENTS)
+    if g.learner.symmetry != "none" and g.sensors.rays % 4:
+        raise ConfigError(f"general.learner.symmetry {g.learner.symmetry}: the compass's turns permute the shore "
+                          "rays only when their number is a multiple of 4, got general.sensors.rays = "
+                          f"{g.sensors.rays}")
     su = g.suite
     for n in (*su.named_fleets, *su.lake_fleets):
         within(n, "general.suite fleets", 2, MAX_AGENTS)
@@ -477,6 +481,9 @@ class AblationConfig:
     changes: dict[str, tuple[str, ...]]
 
 
+Symmetry = Literal["none", "d4"]  # of the general actor (``symmetry``): none, or the compass's turns and mirrors
+
+
 @dataclass(frozen=True)
 class SharedLearnerConfig:
     """The networks and optimisers of ``shared_maddpg.SharedMADDPG``."""
@@ -490,6 +497,7 @@ class SharedLearnerConfig:
     actor_reg: float = 1e-3  # on the pre-tanh action, as openai/maddpg
     pool_range: float = 0.0  # m: the critic pools only the others this close (0: every other buoy of the fleet)
     pool_neighbours: int = 0  # the critic pools only each buoy's K nearest others (0: all of them)
+    symmetry: Symmetry = "none"  # "d4": the actor averaged over the compass's quarter turns and mirrors
 
 
 EVENTS = ("none", "lose", "current")  # the suite's events: still water, a share of the fleet lost at T/2, a drift

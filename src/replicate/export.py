@@ -101,7 +101,8 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
     saved = artifacts.torch_load(actor_path, "general policy")
     try:
         sensors = SensorsConfig(**saved["sensors"])
-        actor = SharedActor(len(saved["columns"]), 2, saved["hidden"])
+        actor = SharedActor(len(saved["columns"]), 2, saved["hidden"], saved.get("symmetry", "none"),
+                            saved["columns"])
         actor.load_state_dict(saved["actor"])
         trained = {"seed": saved["seed"], "selected_episode": saved["selected_episode"]}
     except (KeyError, TypeError, RuntimeError) as exc:
@@ -122,6 +123,8 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
         "scale": "simulation metres: the coverage radius is 0.5; real metres = simulation metres * radius_m / 0.5",
         "trained": trained,
     }
+    if saved.get("symmetry", "none") != "none":  # an actor averaged over the compass's turns (``symmetry``)
+        metadata["symmetry"] = saved["symmetry"]
     if baseline_gains:
         metadata["baseline_gains"] = {k: {"gains": baseline_gains[k]["gains"], "study": baseline_gains[k].get("study")}
                                       for k in ("naive_tuned", "lloyd_tuned")}

@@ -123,7 +123,7 @@ class GeneralTrainer:
         columns = observation_columns("local", self.gc.sensors)
         self.rays = shore_rays(columns)
         obs_dim = len(columns)
-        self.agent = SharedMADDPG(obs_dim, 2, self.gc.learner, seed=seed)
+        self.agent = SharedMADDPG(obs_dim, 2, self.gc.learner, seed=seed, columns=columns)
         self.initial_actor = actor
         if actor is not None:
             self.agent.actor.load_state_dict(actor)
@@ -227,6 +227,7 @@ class GeneralTrainer:
             "format": artifacts.CHECKPOINT_FORMAT, "actor": self.best["actor"], "observation": "local",
             "sensors": to_dict(gc.sensors),
             "columns": observation_columns("local", gc.sensors), "hidden": gc.learner.hidden,
+            "symmetry": gc.learner.symmetry,
             "selected_episode": self.best["episodes"], "seed": self.seed})
         artifacts.write_csv(self.out / "curve.csv.gz", CURVE_COLUMNS, self.rows)
         summary = {"status": "finished", "seed": self.seed, "general": to_dict(gc),

@@ -28,6 +28,7 @@ import torch
 from torch import nn
 
 from .config import SharedLearnerConfig
+from .symmetry import symmetric
 
 
 def mlp(sizes: list[int]) -> nn.Sequential:
@@ -41,11 +42,14 @@ def mlp(sizes: list[int]) -> nn.Sequential:
 
 
 class SharedActor(nn.Module):
-    """a_i = tanh(μ(o_i)) for every buoy: obs [..., obs_dim] → (action, pre-tanh) [..., act_dim]."""
+    """a_i = tanh(μ(o_i)) for every buoy: obs [..., obs_dim] → (action, pre-tanh) [..., act_dim]. With a
+    ``symmetry`` group (``symmetry.symmetric``; ``columns`` name the observation's), μ is the MLP averaged over
+    the group's turns of the observation, and the policy turns with the world."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: int):
+    def __init__(self, obs_dim: int, act_dim: int, hidden: int, symmetry: str = "none",
+                 columns: list[str] | None = None):
         super().__init__()
-        self.net = mlp([obs_dim, hidden, hidden, act_dim])
+        self.net = symmetric(mlp([obs_dim, hidden, hidden, act_dim]), columns or [], symmetry)
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         pre = self.net(obs)
@@ -144,11 +148,13 @@ class FleetBatch:
 class SharedMADDPG:
     """One shared actor and one pooled critic with their targets, and the update that trains them."""
 
-    def __init__(self, obs_dim: int, act_dim: int, cfg: SharedLearnerConfig, seed: int = 0):
+    def __init__(self, obs_dim: int, act_dim: int, cfg: SharedLearnerConfig, seed: int = 0,
+                 columns: list[str] | None = None):
+        """``columns``: the observation's names, which ``cfg.symmetry`` turns (``symmetry``)."""
         self.cfg = cfg
         with torch.random.fork_rng():  # the initial weights from ``seed``, leaving torch's global stream as it was
             torch.manual_seed(seed)
-            self.actor = SharedActor(obs_dim, act_dim, cfg.hidden)
+            self.actor = SharedActor(obs_dim, act_dim, cfg.hidden, cfg.symmetry, columns)
             self.critic = PooledCritic(obs_dim, act_dim, cfg.hidden, cfg.embed, cfg.pool_range,
                                        cfg.pool_neighbours)
         self.actor_target, self.critic_target = copy.deepcopy(self.actor), copy.deepcopy(self.critic)

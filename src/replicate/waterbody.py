@@ -137,7 +137,9 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
         gc = params.general  # the policy's own sensors and width, this lake's horizon
         weights = dict(module.state_dict())
         try:
-            learner = dataclasses.replace(gc.learner, hidden=int(weights["net.0.weight"].shape[0]))
+            symmetry = meta.get("symmetry", "none")  # a symmetric actor's MLP sits inside its average
+            first = "net.net.0.weight" if symmetry != "none" else "net.0.weight"
+            learner = dataclasses.replace(gc.learner, hidden=int(weights[first].shape[0]), symmetry=symmetry)
             gc = dataclasses.replace(gc, episodes=finetune - finetune % gc.n_envs, episode_length=steps,
                                      sensors=SensorsConfig(**meta["sensor_config"]), learner=learner)
             trainer = GeneralTrainer(params, seed, out / "finetune", progress, gc, worlds=[(region, n)],

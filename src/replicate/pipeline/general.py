@@ -39,6 +39,8 @@ def general_identity(params, seed: int) -> dict:
     trained = {k: v for k, v in to_dict(params.general).items() if k not in ("seeds", "suite")}  # not its evaluation
     if not trained["sensors"]["uncovered"]:  # an optional sensor, off: a run's identity names only what it used
         del trained["sensors"]["uncovered"]
+    if trained["learner"]["symmetry"] == "none":  # so is an actor's symmetry
+        del trained["learner"]["symmetry"]
     return {"general_version": GENERAL_VERSION, "seed": seed, "general": trained,
             "world": to_dict(params.world), "coverage": to_dict(params.coverage),
             "cr_reward": to_dict(params.cr_reward), "regions": to_dict(params.regions)}

@@ -412,10 +412,12 @@ def general_section(params, general: dict, summary: dict | None = None) -> list[
     seeds = ", ".join(general.get("seeds", [])) or "one"
     said = {"none": "still water", "lose": f"{su.lose_fraction:.0%} of the fleet lost at T/2 (coverage of the rest "
             "at T)", "current": f"a uniform drift of {su.current} m/s"}
+    turned = (", its actor averaged over the compass's quarter turns and mirrors, `general.learner.symmetry`"
+              if params.general.learner.symmetry != "none" else "")
     lines = ["## One policy for every lake", "",
              f"The general policy (`{general['policy']}`, one network trained once on the training worlds of "
-             "`general`, local sensors only), zero-shot on lakes it never trained on, behind the shore wall: the "
-             f"square, the rectangle and Bedok at N ∈ {list(su.named_fleets)} (each at the paper's density), "
+             f"`general`, local sensors only{turned}), zero-shot on lakes it never trained on, behind the shore "
+             f"wall: the square, the rectangle and Bedok at N ∈ {list(su.named_fleets)} (each at the paper's density), "
              f"{su.held_out} held-out generated lakes at N ∈ {list(su.lake_fleets)} (each at its own density); "
              "starts in the corner patch or scattered; on every lake and fleet: "
              f"{', '.join(said[e] for e in su.events)}. {su.episodes} episodes per cell from the evaluation seed. "
