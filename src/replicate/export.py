@@ -105,7 +105,7 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
                             saved["columns"])
         actor.load_state_dict(saved["actor"])
         trained = {"seed": saved["seed"], "selected_episode": saved["selected_episode"]}
-    except (KeyError, TypeError, RuntimeError) as exc:
+    except (KeyError, TypeError, RuntimeError, ValueError) as exc:
         raise CheckpointError(f"{actor_path}: not a complete general policy's actor ({type(exc).__name__}: {exc}); "
                               "train it again with `replicate train-general`") from None
     with warnings.catch_warnings():

@@ -144,7 +144,7 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
                                      sensors=SensorsConfig(**meta["sensor_config"]), learner=learner)
             trainer = GeneralTrainer(params, seed, out / "finetune", progress, gc, worlds=[(region, n)],
                                      actor=weights)
-        except (KeyError, RuntimeError) as exc:  # weights of another network than the shared actor
+        except (KeyError, RuntimeError, ValueError) as exc:  # another network than the shared actor, or symmetry
             raise ConfigError(f"{policy}: its network is not the general policy's actor ({type(exc).__name__}); "
                               "give a policy exported from a general run (`replicate export RUN`)") from None
         trained = trainer.run()
