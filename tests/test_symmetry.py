@@ -74,20 +74,22 @@ def test_a_symmetric_actor_exports_and_fine_tunes_from_its_file(params, tmp_path
     into a d4 actor, as `replicate cover --finetune` does."""
     from replicate import artifacts
     from replicate.config import to_dict
+    from replicate.env import observation_columns
     from replicate.export import export_general, load_policy
 
-    actor = SharedActor(22, 2, 16, "d4", sensors.columns(4, 8))
+    columns = observation_columns("local", params.general.sensors)  # the sensors the file names, their columns
+    actor = SharedActor(len(columns), 2, 16, "d4", columns)
     artifacts.torch_save(tmp_path / "actor.pt", {
         "format": artifacts.CHECKPOINT_FORMAT, "actor": actor.state_dict(), "observation": "local",
-        "sensors": to_dict(params.general.sensors), "columns": sensors.columns(4, 8), "hidden": 16,
+        "sensors": to_dict(params.general.sensors), "columns": columns, "hidden": 16,
         "symmetry": "d4", "selected_episode": 0, "seed": 0})
     meta = export_general(tmp_path / "actor.pt", tmp_path / "policy.pt")
     module, saved = load_policy(tmp_path / "policy.pt")
     assert meta["symmetry"] == saved["symmetry"] == "d4"
-    obs = torch.randn(7, 22)
+    obs = torch.randn(7, len(columns))
     with torch.no_grad():
         torch.testing.assert_close(module(obs), actor(obs)[0])
-    again = SharedActor(22, 2, 16, "d4", sensors.columns(4, 8))
+    again = SharedActor(len(columns), 2, 16, "d4", columns)
     again.load_state_dict(dict(module.state_dict()))  # the fine-tuning trainer's starting weights
 
 
