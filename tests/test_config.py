@@ -70,6 +70,10 @@ def write(tmp_path, mutate):
         (lambda r: r["general"]["suite"].update(events=["lose"]), r"general.suite.events: 'none' \(still water, which"),
         (lambda r: r["general"]["suite"].update(events=["none", "storm"]), "general.suite.events: 'none'"),
         (lambda r: r["general"]["suite"].update(events=["none", "lose", "lose"]), "each once"),
+        (lambda r: r["design"].update(events=["storm"]), "design.events: any of"),
+        (lambda r: r["design"].update(fleets=[9, 1]), "design.fleets"),
+        (lambda r: r["design"].update(starts=["north"]), "design.starts: 'corner' or 'random'"),
+        (lambda r: r.pop("design"), "missing key 'design'"),
     ],
 )
 def test_bad_params_are_refused(tmp_path, mutate, message):

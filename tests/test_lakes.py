@@ -49,6 +49,14 @@ def test_training_lakes_never_meet_the_held_out_lakes():
     assert lakes.training(5) == lakes.training(500)[:5], "the same stream for every training"
 
 
+def test_design_lakes_are_neither_trained_on_nor_reported():
+    """The lakes where versions of a training are compared (``design.py``) come from a stream of their own."""
+    chosen_on = {s.seed for s in lakes.design(50)}
+    assert len(chosen_on) == 50 and lakes.design(3) == lakes.design(50)[:3]
+    assert not chosen_on & {s.seed for s in lakes.held_out(50)}
+    assert not chosen_on & {s.seed for s in lakes.training(500)}
+
+
 def test_buoys_behind_the_wall_stay_in_a_generated_lake(params):
     """The three smallest held-out lakes (each new lake builds its coverage tables once) take the start patch,
     and buoys pushed flat out stay in their water."""

@@ -531,6 +531,33 @@ def cmd_tune(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_compare(args: argparse.Namespace) -> int:
+    """Two versions of the general training, several seeds each, on the design yardstick (``design.py``)."""
+    from .design import Versions, check_versions, compare_versions, design_cells
+    from .executor import configured_executor
+
+    params = load_params(args.params, overrides(args.set))
+    versions = Versions(tuple(args.baseline), tuple(args.candidate))
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"--workers must be at least 1, got {args.workers}")
+    check_versions(versions)
+    out = claim_out_file(Path(args.out), args.force)
+    workers = args.workers or params.stages.get("pipeline", {}).get("workers", 1)
+    print(f"{len(design_cells(params))} cells (design lakes x fleets x starts x events), "
+          f"{len(args.baseline) + len(args.candidate)} policies, {workers} worker(s)")
+    result = compare_versions(args.params, versions, workers, configured_executor(params, args.executor),
+                              overrides(args.set))
+    artifacts.write_json(out, result)
+    for label, score in result["scores"].items():
+        print(f"{label} {result['policies'][label]}: coverage / lloyd_tuned {score:.4f}")
+    v = result["verdict"]
+    d, p = v["difference"], v["probability_of_improvement"]
+    print(f"candidate - baseline {d['delta']:+.4f} (interval over seeds {d['lo']:+.4f} to {d['hi']:+.4f}); "
+          f"P(a candidate seed beats a baseline seed) {p['p']:.2f}")
+    print(f"rule: {v['rule']}; keep the {v['keep']}; wrote {out}")
+    return 0
+
+
 def cmd_init(args: argparse.Namespace) -> int:
     from .config import packaged
 
@@ -682,6 +709,20 @@ def build_parser() -> argparse.ArgumentParser:
                         "cluster; several `replicate tune` may share one study through a storage URL) (default: "
                         "pipeline.executor)")
     u.set_defaults(func=cmd_tune)
+
+    v = sub.add_parser("compare", help="two versions of the general training, several seeds each, on the design "
+                       "lakes (never trained on, never reported): keep the candidate only if it wins over seeds",
+                       **verb)
+    v.add_argument("--baseline", nargs="+", required=True, metavar="POLICY",
+                   help="the baseline version's exported policies, one per training seed (at least two)")
+    v.add_argument("--candidate", nargs="+", required=True, metavar="POLICY",
+                   help="the candidate version's exported policies, one per training seed (at least two)")
+    v.add_argument("--out", required=True, help="output JSON: every cell, each seed's score and the verdict")
+    v.add_argument("--force", action="store_true", help="replace --out if it exists")
+    v.add_argument("--workers", type=int, default=None, help="processes, one lake each (default: pipeline.workers)")
+    v.add_argument("--executor", choices=("local", "ray"), default=None,
+                   help="local processes or Ray tasks (default: pipeline.executor)")
+    v.set_defaults(func=cmd_compare)
 
     i = sub.add_parser("init", help="write an editable params.yaml with every default value into a folder", **verb)
     i.add_argument("dir", nargs="?", default=".", help="folder")

@@ -152,6 +152,21 @@ def check_general(g: GeneralConfig, regions: dict) -> None:
     within(su.held_out, "general.suite.held_out", 0)
 
 
+def check_design(d: DesignConfig) -> None:
+    """The design yardstick's values in their ranges."""
+    within(d.lakes, "design.lakes", 1)
+    for n in d.fleets:
+        within(n, "design.fleets", 2, MAX_AGENTS)
+    for start in d.starts:
+        if start not in ("corner", "random"):
+            raise ConfigError(f"design.starts: 'corner' or 'random', got {start!r}")
+    if not d.events or not set(d.events) <= set(EVENTS) or len(set(d.events)) < len(d.events):
+        raise ConfigError(f"design.events: any of {list(EVENTS)}, each once, got {list(d.events)}")
+    within(d.episodes, "design.episodes", 1)
+    check_seed(d.seed, "design.seed")
+    within(d.min_gain, "design.min_gain", -1, 1)
+
+
 def check_seed(seed: int, where: str = "--seed") -> int:
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
         raise ConfigError(f"{where} must be a whole number from 0 to {MAX_SEED}, got {seed!r}")
@@ -518,6 +533,21 @@ class SuiteConfig:
 
 
 @dataclass(frozen=True)
+class DesignConfig:
+    """The design yardstick (``design.py``): where two versions of the general training are compared before one
+    is kept, on lakes of a seed stream of their own (``lakes.design``: never trained on, never reported), with
+    the training seed as the unit."""
+
+    lakes: int  # generated lakes of ``lakes.design``, each at its own density
+    fleets: tuple[int, ...]  # N on every lake
+    starts: tuple[str, ...]
+    events: tuple[str, ...]  # of ``EVENTS``, sized as the suite's (``general.suite.lose_fraction``, ``current``)
+    episodes: int  # per cell
+    seed: int  # the evaluation starts: not ``evaluate.seed``, whose starts are reported
+    min_gain: float  # the candidate is kept when the interval of its gain over the baseline lies above this
+
+
+@dataclass(frozen=True)
 class GeneralConfig:
     """One policy for every lake (``general_train``): the worlds it trains on, the events, the schedule."""
 
@@ -572,6 +602,7 @@ class Params:
     tuning: TuningConfig
     report: ReportConfig
     general: GeneralConfig
+    design: DesignConfig
     stages: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -622,6 +653,7 @@ class Params:
                 raise ConfigError(f"regions.{name}.episode_length must be at least 1, got {spec.episode_length}")
 
         check_general(self.general, self.regions)
+        check_design(self.design)
 
     def pipeline_configs(self) -> list[str]:
         return list(self.stages.get("pipeline", {}).get("configs", []))
