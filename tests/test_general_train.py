@@ -41,14 +41,14 @@ def test_a_run_writes_its_actor_curve_and_summary(two_runs):
     lines = gzip.decompress((run / "curve.csv.gz").read_bytes()).decode().splitlines()
     assert len(lines) == 1 + 48 // 8 and lines[0].startswith("batch,episodes,world")
     saved = torch.load(run / "actor.pt")
-    assert len(saved["columns"]) == 30 and saved["sensors"]["neighbours"] == 4
+    assert len(saved["columns"]) == 22 and saved["sensors"]["neighbours"] == 4
     assert saved["sensors"]["velocity"] == "ground"  # over the ground, as params.yaml reads it
-    assert saved["columns"][-8:] == [f"uncovered_{d}deg" for d in range(0, 360, 45)]  # the uncovered-water sensor
+    assert not any(c.startswith("uncovered") for c in saved["columns"])  # the uncovered-water sensor is off
     assert saved["symmetry"] == "d4"  # the actor averaged over the compass's turns, as params.yaml trains it
-    actor = SharedActor(30, 2, saved["hidden"], saved["symmetry"], saved["columns"])
+    actor = SharedActor(22, 2, saved["hidden"], saved["symmetry"], saved["columns"])
     actor.load_state_dict(saved["actor"])
     for n in (5, 9, 30):  # one network for any fleet
-        assert actor(torch.zeros(3, n, 30))[0].shape == (3, n, 2)
+        assert actor(torch.zeros(3, n, 22))[0].shape == (3, n, 2)
 
 
 def test_same_seed_same_run(two_runs):
