@@ -73,6 +73,9 @@ def write(tmp_path, mutate):
         (lambda r: r["design"].update(events=["storm"]), "design.events: any of"),
         (lambda r: r["design"].update(fleets=[9, 1]), "design.fleets"),
         (lambda r: r["design"].update(starts=["north"]), "design.starts: 'corner' or 'random'"),
+        (lambda r: r["design"].update(fleets=[]), "design.fleets: at least one, each once"),
+        (lambda r: r["design"].update(starts=["corner", "corner"]), "design.starts: at least one, each once"),
+        (lambda r: r["design"].update(min_seeds=1), "design.min_seeds"),
         (lambda r: r.pop("design"), "missing key 'design'"),
     ],
 )

@@ -540,13 +540,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
     versions = Versions(tuple(args.baseline), tuple(args.candidate))
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {args.workers}")
-    check_versions(versions)
+    check_versions(versions, params.design.min_seeds)
     out = claim_out_file(Path(args.out), args.force)
     workers = args.workers or params.stages.get("pipeline", {}).get("workers", 1)
+    executor = configured_executor(params, args.executor)
     print(f"{len(design_cells(params))} cells (design lakes x fleets x starts x events), "
-          f"{len(args.baseline) + len(args.candidate)} policies, {workers} worker(s)")
-    result = compare_versions(args.params, versions, workers, configured_executor(params, args.executor),
-                              overrides(args.set))
+          f"{len(args.baseline) + len(args.candidate)} policies, "
+          + (f"{workers} worker(s)" if executor == "local" else "Ray tasks"))
+    result = compare_versions(args.params, versions, workers, executor, overrides(args.set))
     artifacts.write_json(out, result)
     for label, score in result["scores"].items():
         print(f"{label} {result['policies'][label]}: coverage / lloyd_tuned {score:.4f}")

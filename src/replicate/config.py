@@ -155,11 +155,15 @@ def check_general(g: GeneralConfig, regions: dict) -> None:
 def check_design(d: DesignConfig) -> None:
     """The design yardstick's values in their ranges."""
     within(d.lakes, "design.lakes", 1)
+    for name, values in (("fleets", d.fleets), ("starts", d.starts)):
+        if not values or len(set(values)) < len(values):
+            raise ConfigError(f"design.{name}: at least one, each once, got {list(values)}")
     for n in d.fleets:
         within(n, "design.fleets", 2, MAX_AGENTS)
     for start in d.starts:
         if start not in ("corner", "random"):
             raise ConfigError(f"design.starts: 'corner' or 'random', got {start!r}")
+    within(d.min_seeds, "design.min_seeds", 2)
     if not d.events or not set(d.events) <= set(EVENTS) or len(set(d.events)) < len(d.events):
         raise ConfigError(f"design.events: any of {list(EVENTS)}, each once, got {list(d.events)}")
     within(d.episodes, "design.episodes", 1)
@@ -544,6 +548,7 @@ class DesignConfig:
     events: tuple[str, ...]  # of ``EVENTS``, sized as the suite's (``general.suite.lose_fraction``, ``current``)
     episodes: int  # per cell
     seed: int  # the evaluation starts: not ``evaluate.seed``, whose starts are reported
+    min_seeds: int  # training seeds a version needs: fewer make the interval over seeds too narrow
     min_gain: float  # the candidate is kept when the interval of its gain over the baseline lies above this
 
 

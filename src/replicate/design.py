@@ -7,8 +7,7 @@ lakes the report judges the kept version on. A cell is one lake × fleet × star
 policy's score is its mean over the cells of its coverage / ``lloyd_tuned``'s, Lloyd run on the same starts and
 events with the gains the policies carry. The candidate is kept when the bootstrap interval of its gain lies above
 ``design.min_gain`` with the training seed as the unit: one seed moves every cell at once, so an interval over
-cells is too narrow. (The uncovered-water sensor measured +0.007 of Lloyd on four tuning seeds, an interval over
-52 cells of [+0.005, +0.009], and −0.002 on the three reported seeds.)
+cells is too narrow (``docs/GENERAL.md``, "Choosing on lakes of their own", has the case that showed it).
 """
 
 from __future__ import annotations
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import stats
+from .artifacts import CheckpointError
 from .config import ConfigError, Params, load_params
 from .executor import map_jobs
 from .lakes import design, lake_region
@@ -63,24 +63,33 @@ def design_cells(params: Params) -> list[DesignCell]:
             for start in d.starts for event in d.events]
 
 
-def check_versions(versions: Versions) -> None:
-    """Refuse, by name, what cannot give a seed-level interval or a common yardstick: fewer than two seeds a
-    version, a missing or non-general policy file, one file on both sides, policies carrying different
-    baseline gains (their Lloyd would differ)."""
+def check_versions(versions: Versions, min_seeds: int) -> None:
+    """Refuse, by name, what cannot give a seed-level interval or a common yardstick: fewer than ``min_seeds``
+    seeds a version, a missing or non-general policy file, one file on both sides, a policy without the tuned
+    baselines' gains, policies carrying different gains (their Lloyd would differ)."""
     from .evaluate import general_policy
 
     for side in ("baseline", "candidate"):
-        if len(getattr(versions, side)) < 2:
-            raise ConfigError(f"--{side}: give the policies of at least two training seeds (the interval resamples "
-                              f"seeds), got {len(getattr(versions, side))}")
+        if len(getattr(versions, side)) < min_seeds:
+            raise ConfigError(f"--{side}: give the policies of at least {min_seeds} training seeds (design.min_seeds: "
+                              f"the interval resamples seeds, and fewer make it too narrow), got "
+                              f"{len(getattr(versions, side))}")
     files = versions.labelled()
-    for label, path in files.items():
-        if not Path(path).is_file():
-            raise ConfigError(f"--{label.split('/')[0]} {path}: no such file; export each seed's run with "
-                              "`replicate export`")
-    if len(set(map(lambda p: str(Path(p).resolve()), files.values()))) < len(files):
+    if len({str(Path(p).resolve()) for p in files.values()}) < len(files):
         raise ConfigError("--baseline/--candidate: a policy file is given twice; each seed's policy once")
-    gains = {path: general_policy(path)[1].get("baseline_gains") for path in files.values()}
+    gains = {}
+    for label, path in files.items():
+        option = "--" + label.split("/")[0]
+        if not Path(path).is_file():
+            raise ConfigError(f"{option} {path}: no such file; export each seed's run with `replicate export`")
+        try:
+            meta = general_policy(path)[1]
+        except (ConfigError, CheckpointError) as exc:
+            raise ConfigError(f"{option} {path}: not an exported general policy ({exc})") from None
+        if not meta.get("baseline_gains"):
+            raise ConfigError(f"{option} {path}: carries no tuned baseline gains; export it with `replicate export "
+                              "RUN --baseline-gains metrics/tuning/general_baselines.json`")
+        gains[path] = meta["baseline_gains"]
     first, *rest = gains
     differ = [path for path in rest if gains[path] != gains[first]]
     if differ:
@@ -148,7 +157,7 @@ def compare_versions(params_path: str, versions: Versions, workers: int = 1, exe
     """Both versions on every cell of the design yardstick (one job per lake), each seed's score and the
     verdict. → {cells, scores, verdict, by_event}: ``by_event`` gives each version's mean score per event."""
     params = load_params(params_path, overrides)
-    check_versions(versions)
+    check_versions(versions, params.design.min_seeds)
     policies = versions.labelled()
     cells = design_cells(params)
     jobs = [{"params": params_path, "overrides": overrides or {}, "lake": lake, "policies": policies,
