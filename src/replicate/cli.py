@@ -533,7 +533,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """Two versions of the general training, several seeds each, on the design yardstick (``design.py``)."""
-    from .design import Versions, check_versions, compare_versions, design_cells
+    from .design import Versions, check_versions, compare_versions
     from .executor import configured_executor
 
     params = load_params(args.params, overrides(args.set))
@@ -544,7 +544,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     out = claim_out_file(Path(args.out), args.force)
     workers = args.workers or params.stages.get("pipeline", {}).get("workers", 1)
     executor = configured_executor(params, args.executor)
-    print(f"{len(design_cells(params))} cells (design lakes x fleets x starts x events), "
+    d = params.design
+    print(f"{d.lakes * len(d.fleets) * len(d.starts) * len(d.events)} cells (design lakes x fleets x starts x events), "
           f"{len(args.baseline) + len(args.candidate)} policies, "
           + (f"{workers} worker(s)" if executor == "local" else "Ray tasks"))
     result = compare_versions(args.params, versions, workers, executor, overrides(args.set))

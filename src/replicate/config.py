@@ -163,11 +163,11 @@ def check_design(d: DesignConfig) -> None:
     for start in d.starts:
         if start not in ("corner", "random"):
             raise ConfigError(f"design.starts: 'corner' or 'random', got {start!r}")
-    within(d.min_seeds, "design.min_seeds", 2)
     if not d.events or not set(d.events) <= set(EVENTS) or len(set(d.events)) < len(d.events):
         raise ConfigError(f"design.events: any of {list(EVENTS)}, each once, got {list(d.events)}")
     within(d.episodes, "design.episodes", 1)
     check_seed(d.seed, "design.seed")
+    within(d.min_seeds, "design.min_seeds", 2)
     within(d.min_gain, "design.min_gain", -1, 1)
 
 

@@ -22,7 +22,7 @@ from . import stats
 from .artifacts import CheckpointError
 from .config import ConfigError, Params, load_params
 from .executor import map_jobs
-from .lakes import design, lake_region
+from .lakes import design
 from .regions import Region
 
 
@@ -45,19 +45,26 @@ class Versions:
 
     def labelled(self) -> dict[str, str]:
         """{label: policy file}: ``baseline/1``, ..., ``candidate/1``, ... in the order given."""
-        return {f"{side}/{i}": path for side in ("baseline", "candidate")
-                for i, path in enumerate(getattr(self, side), start=1)}
+        return {f"{side}/{i}": path for side in SIDES for i, path in enumerate(getattr(self, side), start=1)}
+
+
+SIDES = ("baseline", "candidate")
+
+
+def side_of(label: str) -> str:
+    """The version a seed's label (``Versions.labelled``) belongs to: ``baseline`` or ``candidate``."""
+    return label.split("/")[0]
 
 
 def design_lakes(params: Params) -> dict[str, tuple[Region, int]]:
     """The yardstick's lakes → (region, the fleet it is drawn for)."""
-    from .worlds import coverage_area
+    from .worlds import named_lakes
 
-    return {(r := lake_region(spec, coverage_area(params))).name: (r, spec.n_agents)
-            for spec in design(params.design.lakes)}
+    return named_lakes(params, design(params.design.lakes))
 
 
 def design_cells(params: Params) -> list[DesignCell]:
+    """Every cell of the yardstick, lake by lake."""
     d = params.design
     return [DesignCell(lake, n, start, event) for lake in design_lakes(params) for n in d.fleets
             for start in d.starts for event in d.events]
@@ -69,7 +76,7 @@ def check_versions(versions: Versions, min_seeds: int) -> None:
     baselines' gains, policies carrying different gains (their Lloyd would differ)."""
     from .evaluate import general_policy
 
-    for side in ("baseline", "candidate"):
+    for side in SIDES:
         if len(getattr(versions, side)) < min_seeds:
             raise ConfigError(f"--{side}: give the policies of at least {min_seeds} training seeds (design.min_seeds: "
                               f"the interval resamples seeds, and fewer make it too narrow), got "
@@ -79,7 +86,7 @@ def check_versions(versions: Versions, min_seeds: int) -> None:
         raise ConfigError("--baseline/--candidate: a policy file is given twice; each seed's policy once")
     gains = {}
     for label, path in files.items():
-        option = "--" + label.split("/")[0]
+        option = "--" + side_of(label)
         if not Path(path).is_file():
             raise ConfigError(f"{option} {path}: no such file; export each seed's run with `replicate export`")
         try:
@@ -100,7 +107,7 @@ def check_versions(versions: Versions, min_seeds: int) -> None:
 def _evaluate_lake(job: dict) -> list[dict]:
     """Every cell of one lake (a job of ``compare_versions``): every policy and Lloyd on the same episodes."""
     from .evaluate import evaluate_policy, lloyd_name
-    from .pipeline.general import at_density, suite_lose
+    from .pipeline.general import at_density, suite_event
     from .train import training_process
 
     training_process()
@@ -112,8 +119,7 @@ def _evaluate_lake(job: dict) -> list[dict]:
     (first, path), *others = job["policies"].items()
     rows = []
     for cell in map(lambda c: DesignCell(**c), job["cells"]):
-        lose = suite_lose(su, cell.n_agents) if cell.event == "lose" else 0
-        current = (su.current, 0.0) if cell.event == "current" else None
+        lose, current = suite_event(su, cell.event, cell.n_agents)
         r = evaluate_policy(path, at_density(region, drawn_for, cell.n_agents), params, cell.n_agents, cell.start,
                             lose, current, geodesic=False, seeds=dict(others))
         coverage = {first: r["coverage"]["mean"], **{k: v["coverage"]["mean"] for k, v in r["seeds"].items()}}
@@ -131,8 +137,7 @@ def seed_scores(rows: list[dict], labels: list[str]) -> dict[str, float]:
 
 def side_means(scores: dict[str, float]) -> dict[str, float]:
     """{"baseline": mean of its seeds' scores, "candidate": ...}."""
-    return {side: float(np.mean([v for k, v in scores.items() if k.startswith(side + "/")]))
-            for side in ("baseline", "candidate")}
+    return {side: float(np.mean([v for k, v in scores.items() if side_of(k) == side])) for side in SIDES}
 
 
 def verdict(scores: dict[str, float], params: Params) -> dict:
@@ -141,8 +146,8 @@ def verdict(scores: dict[str, float], params: Params) -> dict:
     is kept when the interval lies above ``design.min_gain``."""
     r = params.report
     boot = stats.Bootstrap(r.level, r.resamples, r.seed)
-    base = [v for k, v in scores.items() if k.startswith("baseline/")]
-    cand = [v for k, v in scores.items() if k.startswith("candidate/")]
+    base = [v for k, v in scores.items() if side_of(k) == "baseline"]
+    cand = [v for k, v in scores.items() if side_of(k) == "candidate"]
     diff = stats.difference([cand], [base], boot)
     better = stats.probability_of_improvement([cand], [base], boot)
     keep = diff["lo"] > params.design.min_gain
@@ -162,7 +167,7 @@ def compare_versions(params_path: str, versions: Versions, workers: int = 1, exe
     cells = design_cells(params)
     jobs = [{"params": params_path, "overrides": overrides or {}, "lake": lake, "policies": policies,
              "cells": [dataclasses.asdict(c) for c in cells if c.lake == lake]}
-            for lake in design_lakes(params)]
+            for lake in dict.fromkeys(c.lake for c in cells)]
     rows = [row for lake_rows in map_jobs(_evaluate_lake, jobs, executor, workers) for row in lake_rows]
     scores = seed_scores(rows, list(policies))
     by_event = {event: side_means(seed_scores([r for r in rows if r["event"] == event], list(policies)))

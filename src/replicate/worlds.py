@@ -53,6 +53,11 @@ def horizon(gc: GeneralConfig, region: Region, region_area: float) -> int:
     return max(gc.episode_length, int(np.ceil(gc.episode_length * np.sqrt(region.area / region_area))))
 
 
+def named_lakes(params: Params, specs) -> dict[str, tuple[Region, int]]:
+    """{name: (region, the fleet it is drawn for)} of generated lakes' recipes (``lakes.LakeSpec``)."""
+    return {(r := lake_region(spec, coverage_area(params))).name: (r, spec.n_agents) for spec in specs}
+
+
 def training_lakes(params: Params, gc: GeneralConfig) -> list[tuple[Region, int]]:
     """(region, N) of the generated training lakes, the same for every seed."""
     return [(lake_region(spec, coverage_area(params)), spec.n_agents)

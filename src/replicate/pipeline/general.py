@@ -23,7 +23,7 @@ from ..config import load_params, to_dict
 from ..executor import map_jobs
 from ..export import export_general
 from ..general_train import GeneralTrainer
-from ..lakes import held_out, lake_region
+from ..lakes import held_out
 from ..regions import Region, make_region
 from ..train import training_process
 
@@ -116,13 +116,11 @@ def suite_lakes(params) -> dict[str, tuple[Region, int]]:
     """The suite's lakes → (region, the fleet it is drawn for): every region of ``regions`` (the square, the
     rectangle and Bedok) for the paper's 9 buoys, then ``general.suite.held_out`` lakes of ``lakes.held_out`` for
     their own N."""
-    from ..worlds import coverage_area
+    from ..worlds import named_lakes
 
     named = {name: (make_region(name, params.regions[name], params.world.region_area), params.world.n_agents)
              for name in params.regions}
-    lakes = {(r := lake_region(spec, coverage_area(params))).name: (r, spec.n_agents)
-             for spec in held_out(params.general.suite.held_out)}
-    return named | lakes
+    return named | named_lakes(params, held_out(params.general.suite.held_out))
 
 
 def at_density(region: Region, drawn_for: int, n_agents: int) -> Region:
@@ -146,6 +144,12 @@ def suite_lose(suite, n_agents: int) -> int:
     return max(1, int(n_agents * suite.lose_fraction))
 
 
+def suite_event(suite, event: str, n_agents: int) -> tuple[int, tuple[float, float] | None]:
+    """An event of ``EVENTS`` as (buoys lost at T/2, uniform current m/s or None), sized as ``suite`` sizes it."""
+    lose = suite_lose(suite, n_agents) if event == "lose" else 0
+    return lose, (suite.current, 0.0) if event == "current" else None
+
+
 def _evaluate_lake(job: dict) -> list[dict]:
     """Every cell of one lake and fleet (a job of ``evaluate_general``): every seed's policy and the baselines
     (``evaluate.evaluate_policy``), the best layout computed once per fleet left in service."""
@@ -160,8 +164,7 @@ def _evaluate_lake(job: dict) -> list[dict]:
     kept, *others = job["policies"].items()  # the kept seed's, then the others'
     out = []
     for cell in map(lambda c: SuiteCell(**c), job["cells"]):
-        lose = suite_lose(su, cell.n_agents) if cell.event == "lose" else 0
-        current = (su.current, 0.0) if cell.event == "current" else None
+        lose, current = suite_event(su, cell.event, cell.n_agents)
         result = evaluate_policy(kept[1], region, params, cell.n_agents, cell.start, lose, current,
                                  seeds=dict(others))
         seeds = {kept[0]: {k: result[k] for k in ("coverage", "max_outside_m")}, **result.get("seeds", {})}
