@@ -76,6 +76,9 @@ def write(tmp_path, mutate):
         (lambda r: r["design"].update(fleets=[]), "design.fleets: at least one, each once"),
         (lambda r: r["design"].update(starts=["corner", "corner"]), "design.starts: at least one, each once"),
         (lambda r: r["design"].update(min_seeds=1), "design.min_seeds"),
+        (lambda r: r["design"].update(seeds=[1, 2, 3]), r"design.seeds: at least design.min_seeds \(8\)"),
+        (lambda r: r["design"].update(seeds=[1, 1, 2, 3, 4, 5, 6, 7]), "design.seeds: .* each once"),
+        (lambda r: r["design"].update(seeds=[3, 4, 5, 6, 7, 8, 9, 10]), r"design.seeds: \[10\] also in general.seeds"),
         (lambda r: r.pop("design"), "missing key 'design'"),
     ],
 )

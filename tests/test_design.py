@@ -11,7 +11,15 @@ import torch
 
 from replicate import artifacts, stats
 from replicate.config import ConfigError, to_dict
-from replicate.design import Versions, check_versions, design_cells, design_lakes, seed_scores, verdict
+from replicate.design import (
+    SeedPolicy,
+    Versions,
+    check_versions,
+    design_cells,
+    design_lakes,
+    seed_scores,
+    verdict,
+)
 from replicate.env import observation_columns
 from replicate.export import export_general
 from replicate.shared_maddpg import SharedActor
@@ -45,16 +53,20 @@ def test_the_cells_cross_every_design_lake_with_fleets_starts_and_events(params)
     assert len(design_lakes(params)) == d.lakes and set(design_lakes(params)).isdisjoint(suite_lakes(params))
 
 
+def by_seed(baseline: list[float], candidate: list[float]) -> dict[SeedPolicy, float]:
+    """Scores of each version's seeds, keyed as ``compare_versions`` keys them."""
+    return {SeedPolicy(side, i): v for side, values in (("baseline", baseline), ("candidate", candidate))
+            for i, v in enumerate(values, start=1)}
+
+
 def test_the_verdict_resamples_seeds_and_keeps_the_candidate_only_above_the_margin(params):
     """Four seeds a side: every candidate seed above every baseline seed is kept; the same gain with seeds that
     overlap is not; a margin above the gain is not met."""
-    apart = {"baseline/1": 0.980, "baseline/2": 0.981, "baseline/3": 0.982, "baseline/4": 0.983,
-             "candidate/1": 0.990, "candidate/2": 0.991, "candidate/3": 0.992, "candidate/4": 0.993}
+    apart = by_seed([0.980, 0.981, 0.982, 0.983], [0.990, 0.991, 0.992, 0.993])
     v = verdict(apart, params)
     assert v["keep"] == "candidate" and v["difference"]["delta"] == pytest.approx(0.01)
     assert 0 < v["difference"]["lo"] < 0.01 < v["difference"]["hi"] and v["probability_of_improvement"]["p"] == 1
-    overlap = {"baseline/1": 0.960, "baseline/2": 0.990, "baseline/3": 0.975, "baseline/4": 0.999,
-               "candidate/1": 0.970, "candidate/2": 1.000, "candidate/3": 0.985, "candidate/4": 1.009}
+    overlap = by_seed([0.960, 0.990, 0.975, 0.999], [0.970, 1.000, 0.985, 1.009])
     v = verdict(overlap, params)
     assert v["difference"]["delta"] == pytest.approx(0.01) and v["difference"]["lo"] < 0 and v["keep"] == "baseline"
     strict = dataclasses.replace(params, design=dataclasses.replace(params.design, min_gain=0.02))
@@ -73,6 +85,12 @@ def test_with_two_equal_versions_the_rule_rarely_keeps_the_candidate_at_min_seed
 
     assert kept(2) > 0.10
     assert kept(params.design.min_seeds) < 0.06
+
+
+def test_a_seed_is_written_by_its_label_and_files_keep_the_order_given():
+    files = Versions(("a.pt", "b.pt"), ("c.pt", "d.pt")).files()
+    assert [str(seed) for seed in files] == ["baseline/1", "baseline/2", "candidate/1", "candidate/2"]
+    assert files[SeedPolicy("candidate", 2)] == "d.pt"
 
 
 def test_a_seed_scores_its_mean_ratio_to_lloyd_over_the_cells():

@@ -215,7 +215,7 @@ def test_the_pipeline_keeps_the_best_validated_seed_and_skips_finished_ones(tmp_
     raw = yaml.safe_load((ROOT / "params.yaml").read_text())
     raw["general"].update(regions=["square"], fleet=[6], lakes=1, lake_fleet=[5, 5], lake_ratio=[1.0, 1.0],
                           n_envs=4, episodes=8, episode_length=10, learning_starts=50, batch_size=16,
-                          buffer_size=1000, update_every=8, seeds=[0, 1])
+                          buffer_size=1000, update_every=8, seeds=[10, 11])
     raw["regions"]["bedok"]["path"] = str(ROOT / raw["regions"]["bedok"]["path"])
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
     gains = {"naive_tuned": {"gains": {"attraction": 8.0, "avoid_range": 1.0, "avoidance": 10.0, "damping": 0.1}},
@@ -233,6 +233,51 @@ def test_the_pipeline_keeps_the_best_validated_seed_and_skips_finished_ones(tmp_
     assert (tmp_path / "policies" / "general.pt").read_bytes() == kept.read_bytes()
     again = train_general(str(tmp_path / "params.yaml"), str(tmp_path / "policies"), str(tmp_path / "gains.json"), 1)
     assert all(r["skipped"] for r in again["runs"]) and again["kept_seed"] == first["kept_seed"]
+
+
+def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp_path):
+    """``pipeline.general.train_design`` trains ``design.seeds`` as ``train_general`` trains its seeds, without a
+    deployed policy; ``design.standing_baseline`` gives its exported policies, and refuses by name a folder
+    without one or one trained with other values (a stale baseline would score every change since)."""
+    import yaml
+
+    from replicate.config import ConfigError, load_params
+    from replicate.design import standing_baseline
+    from replicate.export import load_policy
+    from replicate.pipeline.general import train_design
+
+    from .conftest import ROOT
+
+    raw = yaml.safe_load((ROOT / "params.yaml").read_text())
+    raw["general"].update(regions=["square"], fleet=[6], lakes=1, lake_fleet=[5, 5], lake_ratio=[1.0, 1.0],
+                          n_envs=4, episodes=8, episode_length=10, learning_starts=50, batch_size=16,
+                          buffer_size=1000, update_every=8)
+    raw["design"].update(seeds=[2, 3], min_seeds=2)
+    raw["regions"]["bedok"]["path"] = str(ROOT / raw["regions"]["bedok"]["path"])
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+    (tmp_path / "gains.json").write_text(json.dumps({"naive_tuned": {"gains": {}}, "lloyd_tuned": {"gains": {}}}))
+    params = load_params(tmp_path / "params.yaml")
+    folder = tmp_path / "design"
+    with pytest.raises(ConfigError, match="no standing baseline here"):
+        standing_baseline(params, folder)
+    summary = train_design(str(tmp_path / "params.yaml"), str(folder), str(tmp_path / "gains.json"), 1)
+    assert [r["seed"] for r in summary["runs"]] == [2, 3] and not (folder / "general.pt").exists()
+    files = standing_baseline(params, folder)
+    assert [load_policy(f)[1]["trained"]["seed"] for f in files] == [2, 3]
+    # a seed trained by `replicate train-general` with the same values records the same identity: the stage keeps it
+    from .test_training import cli
+
+    run = folder / "runs" / "general-s4"
+    assert cli("--params", str(tmp_path / "params.yaml"), "train-general", "--seed", "4", "--out", str(run),
+               "--no-progress").wait(timeout=300) == 0
+    raw["design"]["seeds"] = [2, 3, 4]
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+    again = train_design(str(tmp_path / "params.yaml"), str(folder), str(tmp_path / "gains.json"), 1)
+    assert [r["skipped"] for r in again["runs"]] == [True, True, True]
+    raw["general"]["gamma"] = 0.95
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+    with pytest.raises(ConfigError, match="general-s2: the standing baseline was trained with other values"):
+        standing_baseline(load_params(tmp_path / "params.yaml"), folder)
 
 
 @pytest.mark.slow

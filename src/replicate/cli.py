@@ -292,6 +292,7 @@ def cmd_train_general(args: argparse.Namespace) -> int:
     import shutil
 
     from .general_train import GeneralTrainer
+    from .pipeline.general import general_identity
     from .train import training_process
 
     params = load_params(args.params, overrides(args.set))
@@ -310,6 +311,9 @@ def cmd_train_general(args: argparse.Namespace) -> int:
         shutil.rmtree(out)
     training_process()
     summary = GeneralTrainer(params, args.seed, out, progress=not args.no_progress, config=config).run()
+    # the identity the stages record: train_general or train_design keeps this run when it matches theirs
+    summary["identity"] = general_identity(dataclasses.replace(params, general=config), args.seed)
+    artifacts.write_json(out / "run.json", summary)
     print(f"best validation coverage {summary['selected_validation_coverage']:.3f} at episode "
           f"{summary['selected_episode']}; wrote {out} (`replicate export {out}` makes its policy file)")
     return 0
@@ -533,11 +537,12 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """Two versions of the general training, several seeds each, on the design yardstick (``design.py``)."""
-    from .design import Versions, check_versions, compare_versions
+    from .design import STANDING, Versions, check_versions, compare_versions, standing_baseline
     from .executor import configured_executor
 
     params = load_params(args.params, overrides(args.set))
-    versions = Versions(tuple(args.baseline), tuple(args.candidate))
+    baseline = tuple(args.baseline) if args.baseline else standing_baseline(params, Path(STANDING))
+    versions = Versions(baseline, tuple(args.candidate))
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {args.workers}")
     check_versions(versions, params.design.min_seeds)
@@ -546,7 +551,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     executor = configured_executor(params, args.executor)
     d = params.design
     print(f"{d.lakes * len(d.fleets) * len(d.starts) * len(d.events)} cells (design lakes x fleets x starts x events), "
-          f"{len(args.baseline) + len(args.candidate)} policies, "
+          f"{len(baseline) + len(args.candidate)} policies" + ("" if args.baseline else f" (the baseline: {STANDING}/)")
+          + ", "
           + (f"{workers} worker(s)" if executor == "local" else "Ray tasks"))
     result = compare_versions(args.params, versions, workers, executor, overrides(args.set))
     artifacts.write_json(out, result)
@@ -715,10 +721,13 @@ def build_parser() -> argparse.ArgumentParser:
     v = sub.add_parser("compare", help="two versions of the general training, several seeds each, on the design "
                        "lakes (never trained on, never reported): keep the candidate only if it wins over seeds",
                        **verb)
-    v.add_argument("--baseline", nargs="+", required=True, metavar="POLICY",
-                   help="the baseline version's exported policies, one per training seed (at least two)")
+    v.add_argument("--baseline", nargs="+", default=None, metavar="POLICY",
+                   help="the baseline version's exported policies, one per training seed (at least "
+                        "design.min_seeds; default: the standing baseline in ./design, the current training "
+                        "values on design.seeds, written by the train_design stage)")
     v.add_argument("--candidate", nargs="+", required=True, metavar="POLICY",
-                   help="the candidate version's exported policies, one per training seed (at least two)")
+                   help="the candidate version's exported policies, one per training seed (at least "
+                        "design.min_seeds)")
     v.add_argument("--out", required=True, help="output JSON: every cell, each seed's score and the verdict")
     v.add_argument("--force", action="store_true", help="replace --out if it exists")
     v.add_argument("--workers", type=int, default=None, help="processes, one lake each (default: pipeline.workers)")

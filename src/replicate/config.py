@@ -169,6 +169,11 @@ def check_design(d: DesignConfig) -> None:
     check_seed(d.seed, "design.seed")
     within(d.min_seeds, "design.min_seeds", 2)
     within(d.min_gain, "design.min_gain", -1, 1)
+    for seed in d.seeds:
+        check_seed(seed, "design.seeds")
+    if len(set(d.seeds)) < len(d.seeds) or len(d.seeds) < d.min_seeds:
+        raise ConfigError(f"design.seeds: at least design.min_seeds ({d.min_seeds}) seeds, each once, got "
+                          f"{list(d.seeds)}")
 
 
 def check_seed(seed: int, where: str = "--seed") -> int:
@@ -550,6 +555,7 @@ class DesignConfig:
     seed: int  # the evaluation starts: not ``evaluate.seed``, whose starts are reported
     min_seeds: int  # training seeds a version needs: fewer make the interval over seeds too narrow
     min_gain: float  # the candidate is kept when the interval of its gain over the baseline lies above this
+    seeds: tuple[int, ...]  # the standing baseline's training seeds (``train_design``): never reported
 
 
 @dataclass(frozen=True)
@@ -659,6 +665,10 @@ class Params:
 
         check_general(self.general, self.regions)
         check_design(self.design)
+        reported = sorted(set(self.design.seeds) & set(self.general.seeds))
+        if reported:
+            raise ConfigError(f"design.seeds: {reported} also in general.seeds; the standing baseline's seeds are "
+                              "never the reported ones, choose others")
 
     def pipeline_configs(self) -> list[str]:
         return list(self.stages.get("pipeline", {}).get("configs", []))

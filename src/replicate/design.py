@@ -13,6 +13,7 @@ cells is too narrow (``docs/GENERAL.md``, "Choosing on lakes of their own", has 
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +37,21 @@ class DesignCell:
     event: str
 
 
+SIDES = ("baseline", "candidate")
+
+
+@dataclass(frozen=True)
+class SeedPolicy:
+    """One training seed's policy in a comparison: its version (of ``SIDES``) and its place among that
+    version's files (1, 2, ...). Written to JSON as its label, ``baseline/1``."""
+
+    side: str
+    index: int
+
+    def __str__(self) -> str:
+        return f"{self.side}/{self.index}"
+
+
 @dataclass(frozen=True)
 class Versions:
     """The two versions compared, each the exported policy files of its training seeds."""
@@ -43,17 +59,10 @@ class Versions:
     baseline: tuple[str, ...]
     candidate: tuple[str, ...]
 
-    def labelled(self) -> dict[str, str]:
-        """{label: policy file}: ``baseline/1``, ..., ``candidate/1``, ... in the order given."""
-        return {f"{side}/{i}": path for side in SIDES for i, path in enumerate(getattr(self, side), start=1)}
-
-
-SIDES = ("baseline", "candidate")
-
-
-def side_of(label: str) -> str:
-    """The version a seed's label (``Versions.labelled``) belongs to: ``baseline`` or ``candidate``."""
-    return label.split("/")[0]
+    def files(self) -> dict[SeedPolicy, str]:
+        """{seed: policy file}: the baseline's seeds, then the candidate's, in the order given."""
+        return {SeedPolicy(side, i): path for side in SIDES for i, path in enumerate(getattr(self, side), start=1)}
+STANDING = "design"  # the standing baseline's folder (stage train_design), relative to the working folder
 
 
 def design_lakes(params: Params) -> dict[str, tuple[Region, int]]:
@@ -70,6 +79,26 @@ def design_cells(params: Params) -> list[DesignCell]:
             for start in d.starts for event in d.events]
 
 
+def standing_baseline(params: Params, folder: Path) -> tuple[str, ...]:
+    """The exported policies of the standing baseline in ``folder`` (``pipeline.general.train_design``: the
+    general training's current values on ``design.seeds``), refused by name when it is missing or was trained
+    with other values than ``params`` (its runs' identities must match: a stale baseline would credit or blame
+    the candidate for every change made since)."""
+    from .pipeline.general import finished_general, general_identity
+
+    summary = folder / "summary.json"
+    if not summary.is_file():
+        raise ConfigError(f"{summary}: no standing baseline here; run from the project folder, train it with `dvc "
+                          "repro train_design`, or give --baseline with the policies of each seed")
+    seeds = [run["seed"] for run in json.loads(summary.read_text())["runs"]]
+    for seed in seeds:
+        run = folder / "runs" / f"general-s{seed}"
+        if finished_general(run, general_identity(params, seed)) is None:
+            raise ConfigError(f"{run}: the standing baseline was trained with other values than the params given "
+                              "(or did not finish); `dvc repro train_design` trains it again, or give --baseline")
+    return tuple(str(folder / "runs" / f"general-s{seed}" / "policy.pt") for seed in seeds)
+
+
 def check_versions(versions: Versions, min_seeds: int) -> None:
     """Refuse, by name, what cannot give a seed-level interval or a common yardstick: fewer than ``min_seeds``
     seeds a version, a missing or non-general policy file, one file on both sides, a policy without the tuned
@@ -81,12 +110,12 @@ def check_versions(versions: Versions, min_seeds: int) -> None:
             raise ConfigError(f"--{side}: give the policies of at least {min_seeds} training seeds (design.min_seeds: "
                               f"the interval resamples seeds, and fewer make it too narrow), got "
                               f"{len(getattr(versions, side))}")
-    files = versions.labelled()
+    files = versions.files()
     if len({str(Path(p).resolve()) for p in files.values()}) < len(files):
         raise ConfigError("--baseline/--candidate: a policy file is given twice; each seed's policy once")
     gains = {}
-    for label, path in files.items():
-        option = "--" + side_of(label)
+    for seed, path in files.items():
+        option = "--" + seed.side
         if not Path(path).is_file():
             raise ConfigError(f"{option} {path}: no such file; export each seed's run with `replicate export`")
         try:
@@ -121,7 +150,7 @@ def _evaluate_lake(job: dict) -> list[dict]:
     for cell in map(lambda c: DesignCell(**c), job["cells"]):
         lose, current = suite_event(su, cell.event, cell.n_agents)
         r = evaluate_policy(path, at_density(region, drawn_for, cell.n_agents), params, cell.n_agents, cell.start,
-                            lose, current, geodesic=False, seeds=dict(others))
+                            lose, current, seeds=dict(others), geodesic=False, naive=False, best_layout=False)
         coverage = {first: r["coverage"]["mean"], **{k: v["coverage"]["mean"] for k, v in r["seeds"].items()}}
         lloyd = lloyd_name(r["baselines"])  # lloyd_tuned, or the hand-set lloyd for policies without gains
         rows.append({**dataclasses.asdict(cell), "lloyd": r["baselines"][lloyd]["coverage"]["mean"],
@@ -129,25 +158,30 @@ def _evaluate_lake(job: dict) -> list[dict]:
     return rows
 
 
-def seed_scores(rows: list[dict], labels: list[str]) -> dict[str, float]:
-    """{label: mean over the cells of coverage / lloyd_tuned}: one number per training seed."""
-    ratio = np.array([[row["coverage"][label] / row["lloyd"] for row in rows] for label in labels])
-    return dict(zip(labels, ratio.mean(axis=1).tolist()))
+def seed_scores(rows: list[dict], seeds: list) -> dict:
+    """{seed: mean over the cells of coverage / lloyd_tuned}: one number per training seed (``rows``' coverage
+    keyed by the same seeds: ``SeedPolicy``, or their labels as read back from JSON)."""
+    ratio = np.array([[row["coverage"][seed] / row["lloyd"] for row in rows] for seed in seeds])
+    return dict(zip(seeds, ratio.mean(axis=1).tolist()))
 
 
-def side_means(scores: dict[str, float]) -> dict[str, float]:
+def side_scores(scores: dict[SeedPolicy, float], side: str) -> list[float]:
+    """The scores of one version's seeds, in their order."""
+    return [v for seed, v in scores.items() if seed.side == side]
+
+
+def side_means(scores: dict[SeedPolicy, float]) -> dict[str, float]:
     """{"baseline": mean of its seeds' scores, "candidate": ...}."""
-    return {side: float(np.mean([v for k, v in scores.items() if side_of(k) == side])) for side in SIDES}
+    return {side: float(np.mean(side_scores(scores, side))) for side in SIDES}
 
 
-def verdict(scores: dict[str, float], params: Params) -> dict:
+def verdict(scores: dict[SeedPolicy, float], params: Params) -> dict:
     """The rule, applied: Δ = mean candidate score − mean baseline score, its bootstrap interval over training
     seeds (``report``'s level, resamples and seed) and P(a candidate seed beats a baseline seed); the candidate
     is kept when the interval lies above ``design.min_gain``."""
     r = params.report
     boot = stats.Bootstrap(r.level, r.resamples, r.seed)
-    base = [v for k, v in scores.items() if side_of(k) == "baseline"]
-    cand = [v for k, v in scores.items() if side_of(k) == "candidate"]
+    base, cand = side_scores(scores, "baseline"), side_scores(scores, "candidate")
     diff = stats.difference([cand], [base], boot)
     better = stats.probability_of_improvement([cand], [base], boot)
     keep = diff["lo"] > params.design.min_gain
@@ -163,7 +197,7 @@ def compare_versions(params_path: str, versions: Versions, workers: int = 1, exe
     verdict. → {cells, scores, verdict, by_event}: ``by_event`` gives each version's mean score per event."""
     params = load_params(params_path, overrides)
     check_versions(versions, params.design.min_seeds)
-    policies = versions.labelled()
+    policies = versions.files()
     cells = design_cells(params)
     jobs = [{"params": params_path, "overrides": overrides or {}, "lake": lake, "policies": policies,
              "cells": [dataclasses.asdict(c) for c in cells if c.lake == lake]}
@@ -172,5 +206,11 @@ def compare_versions(params_path: str, versions: Versions, workers: int = 1, exe
     scores = seed_scores(rows, list(policies))
     by_event = {event: side_means(seed_scores([r for r in rows if r["event"] == event], list(policies)))
                 for event in params.design.events}
-    return {"policies": policies, "design": dataclasses.asdict(params.design), "cells": rows, "scores": scores,
+    return {"policies": labelled(policies), "design": dataclasses.asdict(params.design),
+            "cells": [row | {"coverage": labelled(row["coverage"])} for row in rows], "scores": labelled(scores),
             "by_event": by_event, "verdict": verdict(scores, params)}
+
+
+def labelled(by_seed: dict[SeedPolicy, object]) -> dict[str, object]:
+    """``by_seed`` keyed by each seed's label, as written to JSON."""
+    return {str(seed): value for seed, value in by_seed.items()}

@@ -220,21 +220,24 @@ def evaluate_baseline(name: str, params: Params, region: Region, config: str = "
     return out
 
 
-def general_baselines(params: Params, gains: dict | None,
-                      geodesic: bool = True) -> tuple[dict[str, baselines.Policy], str]:
+def general_baselines(params: Params, gains: dict | None, geodesic: bool = True,
+                      naive: bool = True) -> tuple[dict[str, baselines.Policy], str]:
     """The general policy's comparisons → ({name: policy}, how their gains were set). With ``gains`` (the study of
     ``tuning.general_baselines``, carried in the policy's metadata): ``naive_tuned``, ``lloyd_tuned`` and
     geodesic Lloyd with Lloyd's tuned gains, each tuned once on the policy's training worlds, never on the lake
     evaluated; without them, the paper's hand-set ``naive`` and ``lloyd`` and geodesic Lloyd with Lloyd's.
-    ``geodesic`` False leaves geodesic Lloyd out (its paths through the water cost the most of the three)."""
+    ``geodesic`` False leaves geodesic Lloyd out (its paths through the water cost the most of the three),
+    ``naive`` False naive swarming."""
     ev = params.evaluate
     if gains:
-        naive, lloyd = NaiveConfig(**gains["naive_tuned"]["gains"]), LloydConfig(
+        naive_gains, lloyd = NaiveConfig(**gains["naive_tuned"]["gains"]), LloydConfig(
             **gains["lloyd_tuned"]["gains"], converged_steps=ev.lloyd.converged_steps)
         names, how = ("naive_tuned", "lloyd_tuned"), "tuned on the policy's training worlds"
     else:
-        naive, lloyd, names, how = ev.naive, ev.lloyd, ("naive", "lloyd"), "hand-set"
-    rivals = {names[0]: baselines.naive_swarming(naive), names[1]: baselines.lloyd(lloyd)}
+        naive_gains, lloyd, names, how = ev.naive, ev.lloyd, ("naive", "lloyd"), "hand-set"
+    rivals = {names[1]: baselines.lloyd(lloyd)}
+    if naive:
+        rivals = {names[0]: baselines.naive_swarming(naive_gains)} | rivals
     if geodesic:
         rivals["geodesic_lloyd"] = baselines.geodesic_lloyd(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)
     return rivals, how
@@ -248,7 +251,8 @@ def lloyd_name(rivals: dict) -> str:
 
 def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
                     lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False,
-                    seeds: dict[str, str | Path] | None = None, geodesic: bool = True) -> dict:
+                    seeds: dict[str, str | Path] | None = None, geodesic: bool = True, naive: bool = True,
+                    best_layout: bool = True) -> dict:
     """A general policy (``export.export_general``) on ``region`` with ``n_agents`` buoys, zero-shot: behind the
     wall, on its local sensors, ``evaluate.episodes`` episodes from the evaluation seed at ``start``, losing
     ``lose`` buoys half-way, in a uniform ``current`` (m/s). Beside it, under the same physics, starts and events,
@@ -257,7 +261,8 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     baselines', ``ratio_to_lloyd``, ``ratio_to_best`` and ``max_outside_m``: the largest distance of any buoy
     outside the water at any step of any episode. ``seeds`` ({label: policy file}, e.g. every trained seed of
     the general policy) are run on the same episodes, each under ``"seeds"`` with its ``coverage`` and
-    ``max_outside_m``; the baselines run once for all. ``geodesic`` False leaves geodesic Lloyd out."""
+    ``max_outside_m``; the baselines run once for all. ``geodesic``, ``naive`` and ``best_layout`` False leave
+    that comparison out (its ratio is then None); Lloyd always runs."""
     from .best_layout import best_coverage
     from .config import SensorsConfig
     from .shore import distance_outside
@@ -289,11 +294,13 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
            "episodes": ev.episodes, **learned(module, meta), "baselines": {}}
     if others:
         out["seeds"] = {label: learned(*policy) for label, policy in others.items()}
-    rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic)
+    rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic, naive)
     for name, policy in rivals.items():
         out["baselines"][name] = {"coverage": coverage(episodes(policy, None)[1]), "gains": how}
-    best = best_coverage(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges)
-    out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
+    best = best_coverage(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges) \
+        if best_layout else 0.0
+    if best_layout:
+        out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
     lloyd = out["baselines"][lloyd_name(rivals)]["coverage"]["mean"]
     out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None
     out["ratio_to_best"] = out["coverage"]["mean"] / best if best > 0 else None

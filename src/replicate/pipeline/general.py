@@ -4,8 +4,9 @@ best-validated one exported as the policy every lake gets; then that policy, zer
 Layout: ``OUT/runs/general-sSEED/{actor.pt, curve.csv.gz, run.json}`` (``general_train``) and ``policy.pt`` (the
 seed's exported policy, carrying the baselines' gains of ``tuning.general_baselines``), ``OUT/general.pt`` (the
 policy of the seed with the best validation coverage, the one a user deploys) and ``OUT/summary.json`` (each
-seed's validation, time and policy, the one kept). A seed
-already finished with identical settings is kept, so adding seeds trains only the new ones.
+seed's validation, time and policy, the one kept). A seed already finished with identical settings is kept, so
+adding seeds trains only the new ones. The same training on the tuning seeds of ``design.seeds`` is the design
+yardstick's standing baseline (``train_design``, the same layout without ``general.pt``).
 """
 
 from __future__ import annotations
@@ -70,34 +71,64 @@ def _train_seed(job: dict) -> dict:
     return summary
 
 
-def train_general(params_path: str, out_dir: str, gains_path: str | None, workers: int,
-                  executor: str = "local") -> dict:
-    """Train every seed of ``general.seeds`` (``workers`` processes, or Ray tasks), export every seed's actor to
-    ``OUT/runs/general-sSEED/policy.pt`` with the baselines' gains of ``gains_path``, copy the best-validated
-    seed's to ``OUT/general.pt``, write ``OUT/summary.json`` (the same bytes when nothing was trained again, so
-    the suite downstream does not rerun). → the summary, with the stage's wall time and which seeds were kept
-    from an earlier run."""
+def train_seeds(params_path: str, out: Path, seeds, gains_path: str | None, workers: int,
+                executor: str) -> tuple[list[dict], float]:
+    """Train every seed of ``seeds`` into ``OUT/runs/general-sSEED`` (``workers`` processes, or Ray tasks; a seed
+    finished with identical settings is kept) and export each one's actor to ``policy.pt`` there with the
+    baselines' gains of ``gains_path``. → (each seed's summary, flagged ``skipped`` when kept; the wall time)."""
     params = load_params(params_path)
-    out = Path(out_dir)
-    jobs = [{"params": params_path, "seed": s, "out": str(out / "runs" / f"general-s{s}")}
-            for s in params.general.seeds]
+    jobs = [{"params": params_path, "seed": s, "out": str(out / "runs" / f"general-s{s}")} for s in seeds]
     t0 = time.perf_counter()
     runs = map_jobs(_train_seed, jobs, executor, workers)
     wall = time.perf_counter() - t0
-    best = max(runs, key=lambda r: r["selected_validation_coverage"])
     gains = json.loads(Path(gains_path).read_text()) if gains_path else None
-    for run in runs:  # every seed exported, for the suite to judge each one
+    for run in runs:
         run_dir = out / "runs" / f"general-s{run['seed']}"
         export_general(run_dir / "actor.pt", run_dir / SEED_POLICY, params.world.sensitivity, gains)
+    return runs, wall
+
+
+def seed_rows(runs: list[dict]) -> list[dict]:
+    """The summary's row of every seed: its validation, its time and its policy file (relative to OUT)."""
+    return [{k: r.get(k) for k in ("seed", "selected_episode", "selected_validation_coverage", "cpu_seconds",
+                                   "wall_seconds")} | {"policy": f"runs/general-s{r['seed']}/{SEED_POLICY}"}
+            for r in runs]
+
+
+def with_stage_times(summary: dict, runs: list[dict], wall: float) -> dict:
+    """``summary`` as a stage reports it: with its wall time and which seeds were kept from an earlier run."""
+    return summary | {"wall_seconds": round(wall, 1), "runs": [
+        row | {"skipped": r.get("skipped", False)} for row, r in zip(summary["runs"], runs, strict=True)]}
+
+
+def train_general(params_path: str, out_dir: str, gains_path: str | None, workers: int,
+                  executor: str = "local") -> dict:
+    """Train and export every seed of ``general.seeds`` (``train_seeds``), copy the best-validated seed's policy
+    to ``OUT/general.pt``, write ``OUT/summary.json`` (the same bytes when nothing was trained again, so the suite
+    downstream does not rerun). → the summary, with the stage's wall time and which seeds were kept."""
+    params = load_params(params_path)
+    out = Path(out_dir)
+    runs, wall = train_seeds(params_path, out, params.general.seeds, gains_path, workers, executor)
+    best = max(runs, key=lambda r: r["selected_validation_coverage"])
     kept = out / "runs" / f"general-s{best['seed']}" / SEED_POLICY
     artifacts.atomic_write_bytes(out / KEPT_POLICY, kept.read_bytes())
-    summary = {"kept_seed": best["seed"], "runs": [
-        {k: r.get(k) for k in ("seed", "selected_episode", "selected_validation_coverage", "cpu_seconds",
-                               "wall_seconds")} | {"policy": f"runs/general-s{r['seed']}/{SEED_POLICY}"}
-        for r in runs]}
+    summary = {"kept_seed": best["seed"], "runs": seed_rows(runs)}
     artifacts.write_json(out / "summary.json", summary)
-    return summary | {"wall_seconds": round(wall, 1), "runs": [
-        run | {"skipped": r.get("skipped", False)} for run, r in zip(summary["runs"], runs, strict=True)]}
+    return with_stage_times(summary, runs, wall)
+
+
+def train_design(params_path: str, out_dir: str, gains_path: str | None, workers: int,
+                 executor: str = "local") -> dict:
+    """The design yardstick's standing baseline: the general training's current values on the tuning seeds of
+    ``design.seeds`` (never reported), trained and exported as ``train_general`` does, into ``OUT/runs`` and
+    ``OUT/summary.json``; ``replicate compare`` reads it when no ``--baseline`` is given, so a candidate trains
+    only its own seeds. → the summary, with the stage's wall time and which seeds were kept."""
+    params = load_params(params_path)
+    out = Path(out_dir)
+    runs, wall = train_seeds(params_path, out, params.design.seeds, gains_path, workers, executor)
+    summary = {"runs": seed_rows(runs)}
+    artifacts.write_json(out / "summary.json", summary)
+    return with_stage_times(summary, runs, wall)
 
 
 # ---- the evaluation suite: every lake × fleet × start × event ----------------------------------------------
