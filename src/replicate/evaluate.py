@@ -353,8 +353,8 @@ def general_policy(path: str | Path):
     from .export import load_policy
 
     if Path(path).name == "actor.pt":
-        raise ConfigError(f"{path}: a general run's actor; export it first (`replicate export RUN`), then give "
-                          "the exported file to --policy")
+        raise ConfigError(f"{path}: a general run's actor; export it first (`replicate export RUN`) and give "
+                          "the exported policy file instead")
     module, meta = load_policy(path)
     if meta.get("n_agents") != "any" or "sensor_config" not in meta:
         raise ConfigError(f"{path}: a policy for {meta.get('n_agents')} buoys of one region; --policy takes a "
