@@ -8,6 +8,8 @@ policy's score is its mean over the cells of its coverage / ``lloyd_tuned``'s, L
 events with the gains the policies carry. The candidate is kept when the bootstrap interval of its gain lies above
 ``design.min_gain`` with the training seed as the unit: one seed moves every cell at once, so an interval over
 cells is too narrow (``docs/GENERAL.md``, "Choosing on lakes of their own", has the case that showed it).
+The baseline version is by default the standing one (``STANDING``, stage ``train_design``): the current values on
+the tuning seeds of ``design.seeds``, so that a candidate trains only its own seeds.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ class DesignCell:
 
 
 SIDES = ("baseline", "candidate")
+STANDING = "design"  # the standing baseline's folder (stage train_design), relative to the working folder
 
 
 @dataclass(frozen=True)
@@ -62,7 +65,6 @@ class Versions:
     def files(self) -> dict[SeedPolicy, str]:
         """{seed: policy file}: the baseline's seeds, then the candidate's, in the order given."""
         return {SeedPolicy(side, i): path for side in SIDES for i, path in enumerate(getattr(self, side), start=1)}
-STANDING = "design"  # the standing baseline's folder (stage train_design), relative to the working folder
 
 
 def design_lakes(params: Params) -> dict[str, tuple[Region, int]]:
