@@ -113,7 +113,8 @@ def test_outline_files_with_nan_vertices_or_an_unknown_crs_are_named(capsys, tmp
     (["cover", "--region", "lake.geojson", "--policy", "actor.pt"], "export it first"),
     (["cover", "--region", "lake.geojson", "--finetune", "5"], "--finetune must be 0 (zero-shot) or at least"),
     (["cover", "--region", "lake.geojson", "--config", "paper"], "--config goes with --method cr"),
-    (["compare", "--candidate", "actor.pt", "--out", "c.json"], "design/summary.json: no standing baseline here"),
+    (["compare", "--candidate", "actor.pt", "--out", "c.json"],  # against the standing baseline beside params.yaml
+     "--candidate: give the policies of at least 8 training seeds"),
 ])
 def test_general_policy_inputs_are_refused_by_name(capsys, tmp_path, monkeypatch, argv, message):
     monkeypatch.chdir(tmp_path)

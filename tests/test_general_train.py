@@ -235,10 +235,15 @@ def test_the_pipeline_keeps_the_best_validated_seed_and_skips_finished_ones(tmp_
     assert all(r["skipped"] for r in again["runs"]) and again["kept_seed"] == first["kept_seed"]
 
 
+@pytest.mark.slow
 def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp_path):
     """``pipeline.general.train_design`` trains ``design.seeds`` as ``train_general`` trains its seeds, without a
     deployed policy; ``design.standing_baseline`` gives its exported policies, and refuses by name a folder
-    without one or one trained with other values (a stale baseline would score every change since)."""
+    without one, an unreadable summary, other seeds than ``design.seeds`` or runs trained with other values (a
+    stale baseline would score every change since); `replicate compare` without --baseline reads it beside the
+    parameters file."""
+    import shutil
+
     import yaml
 
     from replicate.config import ConfigError, load_params
@@ -247,6 +252,7 @@ def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp
     from replicate.pipeline.general import train_design
 
     from .conftest import ROOT
+    from .test_training import cli
 
     raw = yaml.safe_load((ROOT / "params.yaml").read_text())
     raw["general"].update(regions=["square"], fleet=[6], lakes=1, lake_fleet=[5, 5], lake_ratio=[1.0, 1.0],
@@ -254,30 +260,55 @@ def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp
                           buffer_size=1000, update_every=8)
     raw["design"].update(seeds=[2, 3], min_seeds=2)
     raw["regions"]["bedok"]["path"] = str(ROOT / raw["regions"]["bedok"]["path"])
-    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
-    (tmp_path / "gains.json").write_text(json.dumps({"naive_tuned": {"gains": {}}, "lloyd_tuned": {"gains": {}}}))
-    params = load_params(tmp_path / "params.yaml")
+    params_file = tmp_path / "params.yaml"
+
+    def write(raw):
+        params_file.write_text(yaml.safe_dump(raw, sort_keys=False))
+        return load_params(params_file)
+
+    params = write(raw)
+    gains = {"naive_tuned": {"gains": {"attraction": 8.0, "avoid_range": 1.0, "avoidance": 10.0, "damping": 0.1}},
+             "lloyd_tuned": {"gains": {"gain": 50.0, "damping": 0.2}}}
+    (tmp_path / "gains.json").write_text(json.dumps(gains))
     folder = tmp_path / "design"
     with pytest.raises(ConfigError, match="no standing baseline here"):
         standing_baseline(params, folder)
-    summary = train_design(str(tmp_path / "params.yaml"), str(folder), str(tmp_path / "gains.json"), 1)
+    summary = train_design(str(params_file), str(folder), str(tmp_path / "gains.json"), 1)
     assert [r["seed"] for r in summary["runs"]] == [2, 3] and not (folder / "general.pt").exists()
     files = standing_baseline(params, folder)
     assert [load_policy(f)[1]["trained"]["seed"] for f in files] == [2, 3]
-    # a seed trained by `replicate train-general` with the same values records the same identity: the stage keeps it
-    from .test_training import cli
 
+    # compare without --baseline, from another folder: the baseline is read beside the parameters file
+    copies = []
+    for k, f in enumerate(files):
+        (tmp_path / f"cand{k}").mkdir()
+        copies.append(str(shutil.copy(f, tmp_path / f"cand{k}" / "policy.pt")))
+    small = ["--set", "design.lakes=1", "--set", "design.fleets=[5]", "--set", "design.starts=[random]",
+             "--set", "design.events=[none]", "--set", "design.episodes=2"]
+    out = tmp_path / "c.json"
+    assert cli("--params", str(params_file), *small, "compare", "--candidate", *copies, "--out", str(out),
+               cwd=tmp_path / "cand0").wait(timeout=600) == 0
+    result = json.loads(out.read_text())
+    assert result["policies"]["baseline/1"] == str(folder / "runs" / "general-s2" / "policy.pt")
+    assert result["verdict"]["difference"]["delta"] == 0  # byte copies score as their originals
+
+    # a seed trained by `replicate train-general` with the same values records the same identity: the stage keeps it
     run = folder / "runs" / "general-s4"
-    assert cli("--params", str(tmp_path / "params.yaml"), "train-general", "--seed", "4", "--out", str(run),
+    assert cli("--params", str(params_file), "train-general", "--seed", "4", "--out", str(run),
                "--no-progress").wait(timeout=300) == 0
     raw["design"]["seeds"] = [2, 3, 4]
-    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
-    again = train_design(str(tmp_path / "params.yaml"), str(folder), str(tmp_path / "gains.json"), 1)
-    assert [r["skipped"] for r in again["runs"]] == [True, True, True]
+    params = write(raw)
+    with pytest.raises(ConfigError, match=r"seeds are \[2, 3\], design.seeds \[2, 3, 4\]"):
+        standing_baseline(params, folder)
+    again = train_design(str(params_file), str(folder), str(tmp_path / "gains.json"), 1)
+    assert [r["skipped"] for r in again["runs"]] == [True, True, True] and len(standing_baseline(params, folder)) == 3
+
     raw["general"]["gamma"] = 0.95
-    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
     with pytest.raises(ConfigError, match="general-s2: the standing baseline was trained with other values"):
-        standing_baseline(load_params(tmp_path / "params.yaml"), folder)
+        standing_baseline(write(raw), folder)
+    (folder / "summary.json").write_text("{not json")
+    with pytest.raises(ConfigError, match="summary.json: not a standing baseline's summary"):
+        standing_baseline(params, folder)
 
 
 @pytest.mark.slow

@@ -541,7 +541,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from .executor import configured_executor
 
     params = load_params(args.params, overrides(args.set))
-    baseline = tuple(args.baseline) if args.baseline else standing_baseline(params, Path(STANDING))
+    baseline = tuple(args.baseline) if args.baseline else standing_baseline(params, Path(args.params).parent / STANDING)
     versions = Versions(baseline, tuple(args.candidate))
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {args.workers}")

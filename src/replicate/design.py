@@ -83,21 +83,33 @@ def design_cells(params: Params) -> list[DesignCell]:
 
 def standing_baseline(params: Params, folder: Path) -> tuple[str, ...]:
     """The exported policies of the standing baseline in ``folder`` (``pipeline.general.train_design``: the
-    general training's current values on ``design.seeds``), refused by name when it is missing or was trained
-    with other values than ``params`` (its runs' identities must match: a stale baseline would credit or blame
-    the candidate for every change made since)."""
+    general training's current values on ``design.seeds``), refused by name when it is missing, unreadable, of
+    other seeds than ``design.seeds`` or trained with other values than ``params`` (its runs' identities must
+    match: a stale baseline would credit or blame the candidate for every change made since)."""
     from .pipeline.general import finished_general, general_identity
 
+    retrain = "`dvc repro train_design` trains it again, or give --baseline"
     summary = folder / "summary.json"
     if not summary.is_file():
-        raise ConfigError(f"{summary}: no standing baseline here; run from the project folder, train it with `dvc "
-                          "repro train_design`, or give --baseline with the policies of each seed")
-    seeds = [run["seed"] for run in json.loads(summary.read_text())["runs"]]
+        raise ConfigError(f"{summary}: no standing baseline here (it is read beside the parameters file); train it "
+                          "with `dvc repro train_design`, or give --baseline with the policies of each seed")
+    try:
+        seeds = [run["seed"] for run in json.loads(summary.read_text())["runs"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"{summary}: not a standing baseline's summary ({type(exc).__name__}: {exc}); "
+                          f"{retrain}") from None
+    if seeds != list(params.design.seeds):
+        raise ConfigError(f"{summary}: the standing baseline's seeds are {seeds}, design.seeds "
+                          f"{list(params.design.seeds)}; {retrain}")
     for seed in seeds:
         run = folder / "runs" / f"general-s{seed}"
-        if finished_general(run, general_identity(params, seed)) is None:
+        try:
+            same = finished_general(run, general_identity(params, seed)) is not None
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"{run / 'run.json'}: unreadable ({type(exc).__name__}: {exc}); {retrain}") from None
+        if not same:
             raise ConfigError(f"{run}: the standing baseline was trained with other values than the params given "
-                              "(or did not finish); `dvc repro train_design` trains it again, or give --baseline")
+                              f"(or did not finish); {retrain}")
     return tuple(str(folder / "runs" / f"general-s{seed}" / "policy.pt") for seed in seeds)
 
 
@@ -132,7 +144,8 @@ def check_versions(versions: Versions, min_seeds: int) -> None:
     differ = [path for path in rest if gains[path] != gains[first]]
     if differ:
         raise ConfigError(f"{differ[0]}: carries other baseline gains than {first}; export every policy with the "
-                          "same `--baseline-gains` file, so that both versions are read against the same Lloyd")
+                          "same `--baseline-gains` file, so that both versions are read against the same Lloyd (the "
+                          "standing baseline in design/ is exported again by `dvc repro train_design`)")
 
 
 def _evaluate_lake(job: dict) -> list[dict]:
@@ -160,9 +173,9 @@ def _evaluate_lake(job: dict) -> list[dict]:
     return rows
 
 
-def seed_scores(rows: list[dict], seeds: list) -> dict:
-    """{seed: mean over the cells of coverage / lloyd_tuned}: one number per training seed (``rows``' coverage
-    keyed by the same seeds: ``SeedPolicy``, or their labels as read back from JSON)."""
+def seed_scores(rows: list[dict], seeds: list[SeedPolicy]) -> dict[SeedPolicy, float]:
+    """{seed: mean over the cells of coverage / lloyd_tuned}: one number per training seed, ``rows``' coverage
+    keyed by the same seeds."""
     ratio = np.array([[row["coverage"][seed] / row["lloyd"] for row in rows] for seed in seeds])
     return dict(zip(seeds, ratio.mean(axis=1).tolist()))
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+from collections.abc import Hashable
 from pathlib import Path
 
 import numpy as np
@@ -251,7 +252,7 @@ def lloyd_name(rivals: dict) -> str:
 
 def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
                     lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False,
-                    seeds: dict[str, str | Path] | None = None, geodesic: bool = True, naive: bool = True,
+                    seeds: dict[Hashable, str | Path] | None = None, geodesic: bool = True, naive: bool = True,
                     best_layout: bool = True) -> dict:
     """A general policy (``export.export_general``) on ``region`` with ``n_agents`` buoys, zero-shot: behind the
     wall, on its local sensors, ``evaluate.episodes`` episodes from the evaluation seed at ``start``, losing
@@ -297,9 +298,9 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic, naive)
     for name, policy in rivals.items():
         out["baselines"][name] = {"coverage": coverage(episodes(policy, None)[1]), "gains": how}
-    best = best_coverage(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges) \
-        if best_layout else 0.0
+    best = 0.0
     if best_layout:
+        best = best_coverage(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges)
         out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
     lloyd = out["baselines"][lloyd_name(rivals)]["coverage"]["mean"]
     out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None
