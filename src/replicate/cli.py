@@ -291,8 +291,7 @@ def cmd_train_general(args: argparse.Namespace) -> int:
     again; 3,000 episodes take about half an hour of one core)."""
     import shutil
 
-    from .general_train import GeneralTrainer
-    from .pipeline.general import general_identity
+    from .pipeline.general import train_recorded
     from .train import training_process
 
     params = load_params(args.params, overrides(args.set))
@@ -310,10 +309,8 @@ def cmd_train_general(args: argparse.Namespace) -> int:
             raise ConfigError(f"--out {out}: holds a run already; choose a new folder or pass --force to replace it")
         shutil.rmtree(out)
     training_process()
-    summary = GeneralTrainer(params, args.seed, out, progress=not args.no_progress, config=config).run()
-    # the identity the stages record: train_general or train_design keeps this run when it matches theirs
-    summary["identity"] = general_identity(dataclasses.replace(params, general=config), args.seed)
-    artifacts.write_json(out / "run.json", summary)
+    # recorded as the stages record a seed: train_general or train_design keeps this run when its values match
+    summary = train_recorded(dataclasses.replace(params, general=config), args.seed, out, not args.no_progress)
     print(f"best validation coverage {summary['selected_validation_coverage']:.3f} at episode "
           f"{summary['selected_episode']}; wrote {out} (`replicate export {out}` makes its policy file)")
     return 0
@@ -550,10 +547,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
     workers = args.workers or params.stages.get("pipeline", {}).get("workers", 1)
     executor = configured_executor(params, args.executor)
     d = params.design
+    standing = "" if args.baseline else f" (the baseline: {STANDING}/)"
+    runs_on = f"{workers} worker(s)" if executor == "local" else "Ray tasks"
     print(f"{d.lakes * len(d.fleets) * len(d.starts) * len(d.events)} cells (design lakes x fleets x starts x events), "
-          f"{len(baseline) + len(args.candidate)} policies" + ("" if args.baseline else f" (the baseline: {STANDING}/)")
-          + ", "
-          + (f"{workers} worker(s)" if executor == "local" else "Ray tasks"))
+          f"{len(baseline) + len(args.candidate)} policies{standing}, {runs_on}")
     result = compare_versions(args.params, versions, workers, executor, overrides(args.set))
     artifacts.write_json(out, result)
     for label, score in result["scores"].items():
@@ -723,8 +720,8 @@ def build_parser() -> argparse.ArgumentParser:
                        **verb)
     v.add_argument("--baseline", nargs="+", default=None, metavar="POLICY",
                    help="the baseline version's exported policies, one per training seed (at least "
-                        "design.min_seeds; default: the standing baseline in ./design, the current training "
-                        "values on design.seeds, written by the train_design stage)")
+                        "design.min_seeds; default: the standing baseline in design/ beside --params, the current "
+                        "training values on design.seeds, written by the train_design stage)")
     v.add_argument("--candidate", nargs="+", required=True, metavar="POLICY",
                    help="the candidate version's exported policies, one per training seed (at least "
                         "design.min_seeds)")

@@ -40,7 +40,7 @@ class DesignCell:
 
 
 SIDES = ("baseline", "candidate")
-STANDING = "design"  # the standing baseline's folder (stage train_design), relative to the working folder
+STANDING = "design"  # the standing baseline's folder (stage train_design), beside the parameters file
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ def standing_baseline(params: Params, folder: Path) -> tuple[str, ...]:
     general training's current values on ``design.seeds``), refused by name when it is missing, unreadable, of
     other seeds than ``design.seeds`` or trained with other values than ``params`` (its runs' identities must
     match: a stale baseline would credit or blame the candidate for every change made since)."""
-    from .pipeline.general import finished_general, general_identity
+    from .pipeline.general import SEED_POLICY, finished_general, general_identity, seed_folder
 
     retrain = "`dvc repro train_design` trains it again, or give --baseline"
     summary = folder / "summary.json"
@@ -102,7 +102,7 @@ def standing_baseline(params: Params, folder: Path) -> tuple[str, ...]:
         raise ConfigError(f"{summary}: the standing baseline's seeds are {seeds}, design.seeds "
                           f"{list(params.design.seeds)}; {retrain}")
     for seed in seeds:
-        run = folder / "runs" / f"general-s{seed}"
+        run = seed_folder(folder, seed)
         try:
             same = finished_general(run, general_identity(params, seed)) is not None
         except (OSError, ValueError) as exc:
@@ -110,7 +110,7 @@ def standing_baseline(params: Params, folder: Path) -> tuple[str, ...]:
         if not same:
             raise ConfigError(f"{run}: the standing baseline was trained with other values than the params given "
                               f"(or did not finish); {retrain}")
-    return tuple(str(folder / "runs" / f"general-s{seed}" / "policy.pt") for seed in seeds)
+    return tuple(str(seed_folder(folder, seed) / SEED_POLICY) for seed in seeds)
 
 
 def check_versions(versions: Versions, min_seeds: int) -> None:

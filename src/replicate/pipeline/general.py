@@ -57,18 +57,29 @@ def finished_general(out: Path, identity: dict) -> dict | None:
     return summary if same and summary.get("status") == "finished" else None
 
 
+def seed_folder(out: Path, seed: int) -> Path:
+    """A seed's run folder in a stage's output ``out``."""
+    return out / "runs" / f"general-s{seed}"
+
+
+def train_recorded(params, seed: int, out: Path, progress: bool = False) -> dict:
+    """Train one seed of ``params.general`` into ``out`` and record its identity in ``run.json``, so that a stage
+    finding it there with the same settings keeps it (``finished_general``). → the run's summary."""
+    summary = GeneralTrainer(params, seed, out, progress=progress).run()
+    summary["identity"] = general_identity(params, seed)
+    artifacts.write_json(out / "run.json", summary)
+    return summary
+
+
 def _train_seed(job: dict) -> dict:
     """Train one seed (a job of ``train_general``), or keep it when finished with identical settings."""
     training_process()
     params = load_params(job["params"])
-    out, identity = Path(job["out"]), general_identity(params, job["seed"])
-    done = finished_general(out, identity)
+    out = Path(job["out"])
+    done = finished_general(out, general_identity(params, job["seed"]))
     if done is not None:
         return {**done, "skipped": True}
-    summary = GeneralTrainer(params, job["seed"], out, progress=False).run()
-    summary["identity"] = identity
-    artifacts.write_json(out / "run.json", summary)
-    return summary
+    return train_recorded(params, job["seed"], out)
 
 
 def train_seeds(params_path: str, out: Path, seeds, gains_path: str | None, workers: int,
@@ -77,13 +88,13 @@ def train_seeds(params_path: str, out: Path, seeds, gains_path: str | None, work
     finished with identical settings is kept) and export each one's actor to ``policy.pt`` there with the
     baselines' gains of ``gains_path``. → (each seed's summary, flagged ``skipped`` when kept; the wall time)."""
     params = load_params(params_path)
-    jobs = [{"params": params_path, "seed": s, "out": str(out / "runs" / f"general-s{s}")} for s in seeds]
+    jobs = [{"params": params_path, "seed": s, "out": str(seed_folder(out, s))} for s in seeds]
     t0 = time.perf_counter()
     runs = map_jobs(_train_seed, jobs, executor, workers)
     wall = time.perf_counter() - t0
     gains = json.loads(Path(gains_path).read_text()) if gains_path else None
     for run in runs:
-        run_dir = out / "runs" / f"general-s{run['seed']}"
+        run_dir = seed_folder(out, run["seed"])
         export_general(run_dir / "actor.pt", run_dir / SEED_POLICY, params.world.sensitivity, gains)
     return runs, wall
 
@@ -91,7 +102,7 @@ def train_seeds(params_path: str, out: Path, seeds, gains_path: str | None, work
 def seed_rows(runs: list[dict]) -> list[dict]:
     """The summary's row of every seed: its validation, its time and its policy file (relative to OUT)."""
     return [{k: r.get(k) for k in ("seed", "selected_episode", "selected_validation_coverage", "cpu_seconds",
-                                   "wall_seconds")} | {"policy": f"runs/general-s{r['seed']}/{SEED_POLICY}"}
+                                   "wall_seconds")} | {"policy": str(seed_folder(Path(), r["seed"]) / SEED_POLICY)}
             for r in runs]
 
 
@@ -110,7 +121,7 @@ def train_general(params_path: str, out_dir: str, gains_path: str | None, worker
     out = Path(out_dir)
     runs, wall = train_seeds(params_path, out, params.general.seeds, gains_path, workers, executor)
     best = max(runs, key=lambda r: r["selected_validation_coverage"])
-    kept = out / "runs" / f"general-s{best['seed']}" / SEED_POLICY
+    kept = seed_folder(out, best["seed"]) / SEED_POLICY
     artifacts.atomic_write_bytes(out / KEPT_POLICY, kept.read_bytes())
     summary = {"kept_seed": best["seed"], "runs": seed_rows(runs)}
     artifacts.write_json(out / "summary.json", summary)
