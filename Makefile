@@ -42,7 +42,7 @@ bench: $(BENCH_STAMP)
 
 # Regenerate the reduced-episode regression references on purpose (after a change meant to alter curves).
 reference: $(STAMP)
-	$(PY) -m replicate.regression --write tests/reference
+	$(PY) -m replicate.learn.regression --write tests/reference
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks

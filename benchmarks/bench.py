@@ -14,7 +14,7 @@
    ``--record-from-scratch``), against its 45-minute budget.
 2. One update of all 9 agents, per configuration: the batched MADDPG (hand-written gradients) against the same
    batched update through autograd (the update before its gradients were written out) and the per-agent loop
-   (``maddpg_loop``), as ratios.
+   (``tests/learn/loop_maddpg.py``), as ratios.
 3. Environment throughput (agent-steps per second, random actions) at E = 1, 50 and 1,024 environments, with the
    CR reward on the square and with the shore wall on Bedok, against PettingZoo MPE2 ``simple_spread_v3`` (N = 9,
    continuous actions, one environment) and VMAS ``simple_spread`` (9 agents, the same E), as ratios.
@@ -48,15 +48,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from replicate.config import load_params, run_config
-from replicate.env import CoverageEnv, observation_columns
-from replicate.maddpg import MADDPG, ReplayBuffer, clip_grad_per_agent, soft_update
-from replicate.maddpg_loop import LoopMADDPG
+from replicate.core.params import load_params, run_config
+from replicate.learn.maddpg import MADDPG, ReplayBuffer, clip_grad_per_agent, soft_update
+from replicate.learn.shared_maddpg import FleetBatch, SharedMADDPG, live_rows
+from replicate.learn.train import Trainer, hold_freed_memory
+from replicate.learn.training_worlds import baseline_worlds
 from replicate.pipeline.matrix import cell_seeds, matrix_cells
-from replicate.regions import make_region
-from replicate.shared_maddpg import FleetBatch, SharedMADDPG, live_rows
-from replicate.train import Trainer, hold_freed_memory
-from replicate.worlds import baseline_worlds
+from replicate.world.env import CoverageEnv, observation_columns
+from replicate.world.regions import make_region
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for the tests' reference update
+from tests.learn.loop_maddpg import LoopMADDPG  # noqa: E402
 
 torch.set_num_threads(1)
 

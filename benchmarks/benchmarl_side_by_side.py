@@ -128,9 +128,9 @@ def benchmarl_update_alone(rounds: int = 5) -> float:
 def project_end_to_end(episodes: int = 1000) -> dict:
     """The project's ``paper`` CR-MARL run on the square, one seed: steady seconds per 1,000 episodes (environment
     + updates, with the replay memory past ``learning_starts``) and seconds per update."""
-    from replicate.config import load_params, run_config
-    from replicate.regions import make_region
-    from replicate.train import Trainer
+    from replicate.core.params import load_params, run_config
+    from replicate.learn.train import Trainer
+    from replicate.world.regions import make_region
 
     params = load_params("params.yaml")
     square = make_region("square", params.regions["square"], params.world.region_area)
@@ -149,8 +149,8 @@ def project_agent_and_batch():
     batch) and one minibatch of random transitions."""
     import numpy as np
 
-    from replicate.config import load_params
-    from replicate.maddpg import MADDPG, ReplayBuffer
+    from replicate.core.params import load_params
+    from replicate.learn.maddpg import MADDPG, ReplayBuffer
 
     cfg = load_params("params.yaml").configs["paper"].maddpg
     rng = np.random.default_rng(0)
@@ -172,7 +172,7 @@ def measure(side: str) -> dict:
     """One side's figures, in this process (``--side``)."""
     import torch
 
-    from replicate.train import training_process
+    from replicate.learn.train import training_process
 
     training_process()
     torch.set_num_threads(1)

@@ -11,14 +11,14 @@ os.environ.setdefault("DVC_NO_ANALYTICS", "1")
 
 def pytest_configure(config):
     """The tests train in this process: the settings of a training process (one thread, as the references)."""
-    from replicate.train import training_process
+    from replicate.learn.train import training_process
 
     training_process()
 
 
 @pytest.fixture(scope="session")
 def params():
-    from replicate.config import load_params
+    from replicate.core.params import load_params
 
     return load_params(ROOT / "params.yaml")
 
@@ -26,7 +26,7 @@ def params():
 @pytest.fixture(scope="session")
 def regions(params):
     """The three regions of the paper, built once per session (Bedok from the bundled outline)."""
-    from replicate.regions import make_region
+    from replicate.world.regions import make_region
 
     return {
         name: make_region(name, params.regions[name], params.world.region_area, root=ROOT)

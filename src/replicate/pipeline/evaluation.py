@@ -7,13 +7,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .. import artifacts, stats
-from ..config import Cell, Params, ablated_name, load_params, run_config, selection_only
-from ..evaluate import BASELINES, evaluate_baseline, evaluate_run, read_curve
-from ..executor import map_jobs
-from ..regions import make_region
-from ..train import CURVE
-from .matrix import cell_seeds
+from replicate.compare import stats
+from replicate.compare.evaluate import BASELINES, evaluate_baseline, evaluate_run
+from replicate.core import artifacts
+from replicate.core.artifacts import read_curve
+from replicate.core.executor import map_jobs
+from replicate.core.params import Cell, Params, ablated_name, load_params, run_config, selection_only
+from replicate.learn.train import CURVE
+from replicate.pipeline.matrix import cell_seeds
+from replicate.world.regions import make_region
 
 
 def _evaluate_one(job: dict) -> tuple[str, dict]:
@@ -85,7 +87,7 @@ def not_in_matrix(params: Params, ident: dict, run: Path, regions: dict) -> str 
     """Why the finished run ``run`` (its ``run.json`` is ``ident``) is not one the pipeline reports, or None: its
     config and seed must be in the matrix (``train.seeds``, ``ablation.seeds``), and its identity (code version,
     settings, region, episodes) the one params.yaml gives now. ``regions``: name → Region, built once."""
-    from ..train import finished_run, run_identity
+    from replicate.learn.train import finished_run, run_identity
 
     config = ident.get("config")
     if config not in params.all_configs():

@@ -9,16 +9,18 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import plots
-from ..config import load_params
-from ..env import start_patch
-from ..evaluate import BASELINES, read_curve
-from ..geometry import coverage_fraction_exact
-from ..metrics import coverage_ceiling
-from ..regions import make_region
-from ..train import CURVE
-from .evaluation import not_in_matrix
-from .general import KEPT_POLICY
+from replicate.compare.evaluate import BASELINES
+from replicate.core.artifacts import read_curve
+from replicate.core.params import load_params
+from replicate.learn.general_train import KEPT_POLICY
+from replicate.learn.train import CURVE
+from replicate.pipeline.evaluation import not_in_matrix
+from replicate.toolkit import plots
+from replicate.world.coverage import coverage_ceiling
+from replicate.world.env import start_patch
+from replicate.world.geometry import coverage_fraction_exact
+from replicate.world.osm import describe_source
+from replicate.world.regions import make_region
 
 
 def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir: str, outline_path: str,
@@ -26,7 +28,7 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
     """Every figure of SPEC §9, one PNG per panel, for every configuration, and with ``policies_dir`` (the
     ``train_general`` folder; its suite in ``metrics_dir/general.json``) the general policy's; returns the
     paths written."""
-    from ..regions import region_from_file
+    from replicate.world.regions import region_from_file
 
     params = load_params(params_path)
     fig = Path(figures_dir)
@@ -109,7 +111,7 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
                                           f"{params.ablation.method.upper()}-MARL `{params.ablation.base}` on "
                                           f"{region_name}: each change removed in turn"))
 
-    from ..animate import animate_run
+    from replicate.toolkit.animate import animate_run
 
     for (config, method, region_name), group in sorted(by_group.items()):
         if method == "cr":  # one animated evaluation episode per region and configuration
@@ -134,9 +136,9 @@ def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[P
     (scattered by default; ``fig_general_lakes.png``), and as GIFs through a loss of a share of the fleet at T/2
     (``anim_general_lose.gif``) and through a drift (``anim_general_current.gif``), on Bedok with the paper's
     fleet."""
-    from ..animate import animate_trace
-    from ..evaluate import general_episode, lloyd_name
-    from .general import at_density, suite_lakes, suite_lose
+    from replicate.compare.evaluate import general_episode, lloyd_name
+    from replicate.compare.suite import at_density, suite_lakes, suite_lose
+    from replicate.toolkit.animate import animate_trace
 
     su, c = params.general.suite, params.coverage
     suite = {(x["region"], x["n_agents"], x["start"], x["event"]): x
@@ -169,14 +171,6 @@ def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[P
     written.append(animate_trace(bedok.polygon, trace, alive, c.radius, c.edges, "general policy, Bedok, drift",
                                  fig / "anim_general_current.gif", flow=np.asarray(flow)))
     return written
-
-
-def describe_source(outline_path: str) -> str:
-    """Where an outline written by the fetch stage came from, for figure titles."""
-    props = json.loads(Path(outline_path).read_text())["features"][0]["properties"]
-    if props.get("source") == "openstreetmap":
-        return f"OpenStreetMap ({props.get('osm_id')}, retrieved {props.get('retrieved')})"
-    return f"bundled SLA National Map outline — OpenStreetMap was unreachable ({props.get('retrieved')})"
 
 
 def gallery(paths, notebook_dir: str) -> str:

@@ -14,61 +14,22 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
-from shapely import affinity
-
-from .. import artifacts
-from ..config import load_params, to_dict
-from ..executor import map_jobs
-from ..export import export_general
-from ..general_train import GeneralTrainer
-from ..lakes import held_out
-from ..regions import Region, make_region
-from ..train import training_process
-
-GENERAL_VERSION = 3  # raised when the general training's arithmetic changes: older runs are trained again
-# 2: the update runs on the buoys in service only and applies φ's last layer to the pooled mean (float rounding)
-# 3: a velocity over the ground is the buoy's displacement over the last step / dt (the shore's stop included)
-KEPT_POLICY = "general.pt"  # the best-validated seed's policy, the one a user deploys
-SEED_POLICY = "policy.pt"  # each seed's exported policy, in its run folder
-
-
-def general_identity(params, seed: int) -> dict:
-    """What makes two general runs the same run: the version, the seed and every value they train with."""
-    trained = {k: v for k, v in to_dict(params.general).items() if k not in ("seeds", "suite")}  # not its evaluation
-    if not trained["sensors"]["uncovered"]:  # an optional sensor, off: a run's identity names only what it used
-        del trained["sensors"]["uncovered"]
-    if trained["learner"]["symmetry"] == "none":  # so is an actor's symmetry
-        del trained["learner"]["symmetry"]
-    return {"general_version": GENERAL_VERSION, "seed": seed, "general": trained,
-            "world": to_dict(params.world), "coverage": to_dict(params.coverage),
-            "cr_reward": to_dict(params.cr_reward), "regions": to_dict(params.regions)}
-
-
-def finished_general(out: Path, identity: dict) -> dict | None:
-    """The summary of a finished general run in ``out`` with this identity, else None."""
-    path = out / "run.json"
-    if not (path.exists() and (out / "actor.pt").exists()):
-        return None
-    summary = json.loads(path.read_text())
-    same = summary.get("identity") == json.loads(json.dumps(identity))
-    return summary if same and summary.get("status") == "finished" else None
-
-
-def seed_folder(out: Path, seed: int) -> Path:
-    """A seed's run folder in a stage's output ``out``."""
-    return out / "runs" / f"general-s{seed}"
-
-
-def train_recorded(params, seed: int, out: Path, progress: bool = False) -> dict:
-    """Train one seed of ``params.general`` into ``out`` and record its identity in ``run.json``, so that a stage
-    finding it there with the same settings keeps it (``finished_general``). → the run's summary."""
-    summary = GeneralTrainer(params, seed, out, progress=progress).run()
-    summary["identity"] = general_identity(params, seed)
-    artifacts.write_json(out / "run.json", summary)
-    return summary
+from replicate.compare.suite import SuiteCell, at_density, suite_cells, suite_event, suite_lakes
+from replicate.core import artifacts
+from replicate.core.executor import map_jobs
+from replicate.core.params import load_params
+from replicate.learn.general_train import (
+    KEPT_POLICY,
+    SEED_POLICY,
+    finished_general,
+    general_identity,
+    seed_folder,
+    train_recorded,
+)
+from replicate.learn.train import training_process
+from replicate.toolkit.export import export_general
 
 
 def _train_seed(job: dict) -> dict:
@@ -142,60 +103,10 @@ def train_design(params_path: str, out_dir: str, gains_path: str | None, workers
     return with_stage_times(summary, runs, wall)
 
 
-# ---- the evaluation suite: every lake × fleet × start × event ----------------------------------------------
-@dataclass(frozen=True)
-class SuiteCell:
-    """One cell of the generalisation table: a lake (a named region or a held-out lake), a fleet, a start, an
-    event (``config.EVENTS``: still water, a share of the fleet lost at T/2, a uniform drift)."""
-
-    region: str
-    n_agents: int
-    start: str
-    event: str
-
-
-def suite_lakes(params) -> dict[str, tuple[Region, int]]:
-    """The suite's lakes → (region, the fleet it is drawn for): every region of ``regions`` (the square, the
-    rectangle and Bedok) for the paper's 9 buoys, then ``general.suite.held_out`` lakes of ``lakes.held_out`` for
-    their own N."""
-    from ..worlds import named_lakes
-
-    named = {name: (make_region(name, params.regions[name], params.world.region_area), params.world.n_agents)
-             for name in params.regions}
-    return named | named_lakes(params, held_out(params.general.suite.held_out))
-
-
-def at_density(region: Region, drawn_for: int, n_agents: int) -> Region:
-    """``region`` scaled for ``n_agents`` buoys at the density it was drawn for (the same N·A(Cov)/A(Reg))."""
-    s = (n_agents / drawn_for) ** 0.5
-    return dataclasses.replace(region, polygon=affinity.scale(region.polygon, s, s, origin=(0, 0)),
-                               scale=region.scale / s)
-
-
-def suite_cells(params) -> list[SuiteCell]:
-    su = params.general.suite
-    cells = []
-    for name in suite_lakes(params):
-        fleets = su.named_fleets if name in params.regions else su.lake_fleets
-        cells += [SuiteCell(name, n, start, event) for n in fleets for start in su.starts for event in su.events]
-    return cells
-
-
-def suite_lose(suite, n_agents: int) -> int:
-    """Buoys lost at T/2 in the suite's "lose" event: ``lose_fraction`` of the fleet, at least one."""
-    return max(1, int(n_agents * suite.lose_fraction))
-
-
-def suite_event(suite, event: str, n_agents: int) -> tuple[int, tuple[float, float] | None]:
-    """An event of ``EVENTS`` as (buoys lost at T/2, uniform current m/s or None), sized as ``suite`` sizes it."""
-    lose = suite_lose(suite, n_agents) if event == "lose" else 0
-    return lose, (suite.current, 0.0) if event == "current" else None
-
-
 def _evaluate_lake(job: dict) -> list[dict]:
     """Every cell of one lake and fleet (a job of ``evaluate_general``): every seed's policy and the baselines
     (``evaluate.evaluate_policy``), the best layout computed once per fleet left in service."""
-    from ..evaluate import evaluate_policy
+    from replicate.compare.evaluate import evaluate_policy
 
     training_process()
     params = load_params(job["params"])

@@ -13,11 +13,11 @@ import os
 import time
 from pathlib import Path
 
-from .. import artifacts
-from ..config import ablated_name, load_params, run_config, selection_only
-from ..executor import map_jobs
-from ..regions import make_region
-from ..train import core_seconds, finished_run, run_identity, timed_by, train_runs, training_process
+from replicate.core import artifacts
+from replicate.core.executor import map_jobs
+from replicate.core.params import ablated_name, load_params, run_config, selection_only
+from replicate.learn.train import core_seconds, finished_run, run_identity, timed_by, train_runs, training_process
+from replicate.world.regions import make_region
 
 
 def run_name(config: str, method: str, region: str, seed: int) -> str:

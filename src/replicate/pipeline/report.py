@@ -14,8 +14,9 @@ from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
-from .. import artifacts, stats
-from ..config import EVENTS, Cell, ReportConfig, run_config
+from replicate.compare import stats
+from replicate.core import artifacts
+from replicate.core.params import EVENTS, Cell, ReportConfig, run_config
 
 REPRODUCED, PARTLY, NOT = "reproduced", "partly", "not reproduced"
 
@@ -504,17 +505,17 @@ def missing_runs(params, summary: dict) -> list[str]:
 
 
 def arithmetic_line(runs: list[dict]) -> str:
-    """Which arithmetic (``replicate.arithmetic.fingerprint``) trained the runs: one fingerprint means every run is
-    reproducible bit for bit by the same code, libraries and CPU."""
+    """Which arithmetic (``replicate.learn.fingerprint.fingerprint``) trained the runs: one fingerprint means every
+    run is reproducible bit for bit by the same code, libraries and CPU."""
     counts = Counter(r.get("arithmetic") or "not recorded" for r in runs)
     kinds = ", ".join(f"`{k}` ({n} run{'s' * (n != 1)})" for k, n in counts.most_common())
     if len(counts) == 1 and "not recorded" not in counts:
         return (f"Arithmetic: all {len(runs)} runs were trained by the same arithmetic, fingerprint "
-                f"`{next(iter(counts))}` (`replicate.arithmetic`: the numbers a fixed workload gives with this code, "
-                "libraries and CPU).")
+                f"`{next(iter(counts))}` (`replicate.learn.fingerprint`: the numbers a fixed workload gives with this "
+                "code, libraries and CPU).")
     return (f"Arithmetic: the runs carry {len(counts)} fingerprints, {kinds}: runs of different fingerprints were "
             "trained by code, libraries or CPUs that round differently, and a rerun reproduces only its own kind "
-            "bit for bit (`replicate.arithmetic`).")
+            "bit for bit (`replicate.learn.fingerprint`).")
 
 
 def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict[str, str], figures: list[str],

@@ -1,0 +1,325 @@
+"""Evaluation (SPEC §8): a trained run, a baseline or a general policy, 100 episodes with fixed evaluation seeds,
+into JSON.
+
+All evaluation episodes run at once as E = ``episodes`` parallel environments from the evaluation seed, so a
+method and a baseline start from the same positions. Policies are deterministic (no exploration noise).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Hashable
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from replicate.compare import baselines, metrics
+from replicate.core import artifacts
+from replicate.core.params import (
+    ConfigError,
+    LloydConfig,
+    NaiveConfig,
+    Params,
+    RunConfig,
+    StartsConfig,
+    run_config,
+)
+from replicate.learn.train import CURVE, core_seconds, load_actors
+from replicate.world import coverage
+from replicate.world.env import CoverageEnv
+from replicate.world.regions import Region
+from replicate.world.scenario import evaluation_env, general_evaluation_env
+
+# the paper's comparisons with hand-set gains and the same heuristics with gains tuned by ``tuning.py``, in the
+# order the evaluate stage starts them: costliest first (the converged Lloyd layouts run 500 steps)
+BASELINES = ("lloyd_converged", "lloyd_tuned", "lloyd", "naive_tuned", "naive", "random")
+PAPER_START = StartsConfig("corner")
+
+
+def rollout(env: CoverageEnv, policy, steps: int, seed: int, starts: StartsConfig = PAPER_START,
+            bar=None) -> dict:
+    """Run ``policy`` for ``steps`` from a reset with ``seed`` at ``starts.start``, losing ``starts.lose`` buoys
+    after half the steps (drawn from a generator of ``seed``): positions at every step [steps + 1, E, N, 2], the
+    buoys in service at every step [steps + 1, E, N] (a lost buoy is out from the frame it is lost at), the live
+    buoys' last positions [E, N_live, 2], and each agent's return under the environment's reward [E, N] (zeros
+    when it has none). ``bar``, a tqdm bar, counts the steps."""
+    env.reset(seed, start=starts.start)
+    loss_rng = np.random.default_rng([seed, 1])
+    trace, alive = [env.pos.copy()], [np.ones((env.n_envs, env.n_agents), bool)]
+    returns = np.zeros((env.n_envs, env.n_agents))
+    for t in range(steps):
+        if starts.lose and t == steps // 2:
+            env.lose(starts.lose, loss_rng)
+            alive[-1] = env.alive.copy()  # lost where they stand
+        returns += env.step(policy(env)).reward
+        trace.append(env.pos.copy())
+        alive.append(alive[-1] if env.alive is None else env.alive.copy())
+        if bar is not None:
+            bar.update(1)
+    return {"positions": np.stack(trace), "alive": np.stack(alive), "live": env.live_positions().copy(),
+            "returns": returns}
+
+
+def robustness(env: CoverageEnv, policy, params: Params, region: Region, rc: RunConfig, bar=None) -> dict:
+    """Mean exact coverage of ``policy`` under every scenario of ``evaluate.robustness``, each from the
+    evaluation seed: {scenario: {"coverage", "steps"}}."""
+    out = {}
+    for name, starts in params.evaluate.robustness.items():
+        steps = round(starts.horizon * rc.world.episode_length)
+        live = rollout(env, policy, steps, params.evaluate.seed, starts, bar)["live"]
+        cov = coverage.coverage_fraction(region.polygon, live, rc.coverage.radius, rc.coverage.edges)
+        out[name] = {"coverage": float(cov.mean()), "steps": steps}
+    return out
+
+
+def summarise(region: Region, trace: np.ndarray, radius: float, edges: int) -> dict:
+    """SPEC §8 metrics of the last step of a rollout ``trace`` [T + 1, E, N, 2]: per-episode values, their mean
+    with a 95 % CI, and the first episode's trajectory as an example for the figures."""
+    xy = trace[-1]
+    cov = coverage.coverage_fraction(region.polygon, xy, radius, edges)
+    nn = metrics.mean_nearest_neighbour(xy)
+    inside = coverage.fraction_inside(region.polygon, xy, radius, edges)
+    return {
+        "coverage": metrics.mean_ci(cov),
+        "nearest_neighbour": metrics.mean_ci(nn),
+        "fraction_inside": metrics.mean_ci(inside),
+        "per_episode": {"coverage": cov.round(6).tolist()},
+        "example": {"final_positions": xy[0].round(5).tolist(), "trajectory": trace[:, 0].round(4).tolist()},
+    }
+
+
+def actor_policy(net, observation: str) -> baselines.Policy:
+    """The trained decentralised actors as a deterministic policy: a_i = tanh(μ_i(o_i))."""
+
+    def policy(env: CoverageEnv) -> np.ndarray:
+        obs = env.observe()
+        with torch.no_grad():
+            x = torch.from_numpy(np.ascontiguousarray(obs.transpose(1, 0, 2)))
+            return torch.tanh(net(x)).transpose(0, 1).numpy().astype(float)
+
+    return policy
+
+
+def run_actors(run_dir: Path, params: Params, actors: str = "actors.pt", same_observation: bool = True):
+    """A run's actors, metadata and run config under ``params``, refused by name when the params give the world
+    another number of buoys than the actors were trained for, or (``same_observation``) another observation."""
+    net, meta = load_actors(Path(run_dir) / actors)
+    ident = meta["identity"]
+    rc = run_config(params, ident["config"], ident["method"], ident["region"])
+    if same_observation and meta["observation"] != rc.algo.observation:
+        raise ConfigError(f"{run_dir}: actors observe {meta['observation']!r}, params say {rc.algo.observation!r}")
+    n_actors = net.weights[0].shape[0]
+    if n_actors != rc.world.n_agents:
+        raise ConfigError(f"{run_dir}: the run has {n_actors} actors (one per buoy), the world {rc.world.n_agents} "
+                          f"buoys; use it with world.n_agents={n_actors}")
+    return net, meta, rc
+
+
+def evaluate_run(run_dir: str | Path, params: Params, region: Region, actors: str = "actors.pt",
+                 as_config: str | None = None, progress: bool = False) -> dict:
+    """Metrics of a finished run: deterministic evaluation plus convergence from its training curve.
+    ``actors``/``as_config`` evaluate another actors file of the run and file it under another config name
+    (the last actors of a selecting run are its "without selection" ablation)."""
+    run_dir = Path(run_dir)
+    net, meta, rc = run_actors(run_dir, params, actors)
+    ident = meta["identity"]
+    ev = params.evaluate
+    env = evaluation_env(region, rc, ev.episodes, rc.algo.observation)
+    policy = actor_policy(net, meta["observation"])
+    with steps_bar(params, rc, progress, f"evaluating {Path(run_dir).name}") as bar:
+        pos = rollout(env, policy, rc.world.episode_length, ev.seed, bar=bar)["positions"]
+        out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
+        out["robustness"] = robustness(env, policy, params, region, rc, bar)
+    curve = artifacts.read_curve(run_dir / CURVE)
+    conv = {str(f): metrics.convergence_episode(curve["team_reward"], ev.converge_window, f * ev.converge_tolerance,
+                                                ev.converge_final) for f in (1.0, *params.report.sensitivity)}
+    run = json.loads((run_dir / "run.json").read_text())
+    out.update(
+        kind="run",
+        config=as_config or ident["config"],
+        method=ident["method"],
+        region=ident["region"],
+        seed=ident["seed"],
+        episodes=ident["episodes"],
+        convergence_episode=conv["1.0"],
+        convergence_by_tolerance=conv,  # tolerance factor → convergence episode, for the report's sensitivity
+        training_coverage_last100=float(curve["coverage"][-100:].mean()),
+        core_seconds=core_seconds(run),  # one core's time for the run
+    )
+    return out
+
+
+def baseline_policy(name: str, params: Params, tuned: dict | None = None) -> baselines.Policy:
+    """A baseline by name; ``naive_tuned``/``lloyd_tuned`` take their gains from ``tuned`` (the entry of
+    ``metrics/tuning/baselines.json`` for their kind and region)."""
+    ev = params.evaluate
+    if name == "random":
+        return baselines.random_policy(np.random.default_rng(ev.seed + 1))
+    if name == "naive":
+        return baselines.naive_swarming(ev.naive)
+    if name in ("lloyd", "lloyd_converged"):
+        return baselines.lloyd(ev.lloyd)
+    if tuned is None:
+        raise ConfigError(f"baseline {name!r} needs its tuned gains (the tune_baselines stage)")
+    if name == "naive_tuned":
+        return baselines.naive_swarming(NaiveConfig(**tuned["gains"]))
+    return baselines.lloyd(LloydConfig(**tuned["gains"], converged_steps=ev.lloyd.converged_steps))
+
+
+def steps_bar(params: Params, rc: RunConfig, progress: bool, what: str, steps: int | None = None,
+              scenarios: bool = True):
+    """A progress bar over the environment steps of an evaluation (and of its robustness scenarios)."""
+    from tqdm.auto import tqdm
+
+    scenarios = scenarios * sum(round(s.horizon * rc.world.episode_length) for s in params.evaluate.robustness.values())
+    total = (rc.world.episode_length if steps is None else steps) + scenarios
+    return tqdm(total=total, desc=what, unit="step", disable=not progress, leave=False)
+
+
+def evaluate_baseline(name: str, params: Params, region: Region, config: str = "paper",
+                      tuned: dict | None = None, progress: bool = False) -> dict:
+    """Metrics of a baseline with the same physics, T and start as the runs of ``config``, and under the
+    robustness scenarios (but the converged Lloyd layout, which is a limit, not a policy under a horizon)."""
+    if name not in BASELINES:
+        raise ConfigError(f"unknown baseline {name!r}; known: {list(BASELINES)}")
+    rc = run_config(params, config, "cr", region.name)
+    ev = params.evaluate
+    env = evaluation_env(region, rc, ev.episodes)
+    steps = ev.lloyd.converged_steps if name == "lloyd_converged" else rc.world.episode_length
+    policy = baseline_policy(name, params, tuned)
+    limit = name == "lloyd_converged"  # a layout after many steps, not a policy under a horizon: no scenarios
+    with steps_bar(params, rc, progress, f"evaluating {name}", steps, scenarios=not limit) as bar:
+        pos = rollout(env, policy, steps, ev.seed, bar=bar)["positions"]
+        out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
+        if not limit:
+            out["robustness"] = robustness(env, policy, params, region, rc, bar)
+    if tuned is not None:
+        out["gains"] = tuned["gains"]
+    out.update(kind="baseline", baseline=name, region=region.name, steps=steps, config=config)
+    out["ceiling"] = coverage.coverage_ceiling(region.area, rc.world.n_agents, rc.coverage.radius, rc.coverage.edges)
+    return out
+
+
+def general_baselines(params: Params, gains: dict | None, geodesic: bool = True,
+                      naive: bool = True) -> tuple[dict[str, baselines.Policy], str]:
+    """The general policy's comparisons → ({name: policy}, how their gains were set). With ``gains`` (the study of
+    ``tuning.general_baselines``, carried in the policy's metadata): ``naive_tuned``, ``lloyd_tuned`` and
+    geodesic Lloyd with Lloyd's tuned gains, each tuned once on the policy's training worlds, never on the lake
+    evaluated; without them, the paper's hand-set ``naive`` and ``lloyd`` and geodesic Lloyd with Lloyd's.
+    ``geodesic`` False leaves geodesic Lloyd out (its paths through the water cost the most of the three),
+    ``naive`` False naive swarming."""
+    ev = params.evaluate
+    if gains:
+        naive_gains, lloyd = NaiveConfig(**gains["naive_tuned"]["gains"]), LloydConfig(
+            **gains["lloyd_tuned"]["gains"], converged_steps=ev.lloyd.converged_steps)
+        names, how = ("naive_tuned", "lloyd_tuned"), "tuned on the policy's training worlds"
+    else:
+        naive_gains, lloyd, names, how = ev.naive, ev.lloyd, ("naive", "lloyd"), "hand-set"
+    rivals = {names[1]: baselines.lloyd(lloyd)}
+    if naive:
+        rivals = {names[0]: baselines.naive_swarming(naive_gains)} | rivals
+    if geodesic:
+        rivals["geodesic_lloyd"] = baselines.geodesic_lloyd(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)
+    return rivals, how
+
+
+def lloyd_name(rivals: dict) -> str:
+    """The Lloyd a general policy is read against among its baselines ``rivals`` (names as keys):
+    ``lloyd_tuned`` when the policy carries tuned gains, else the hand-set ``lloyd``."""
+    return "lloyd_tuned" if "lloyd_tuned" in rivals else "lloyd"
+
+
+def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
+                    lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False,
+                    seeds: dict[Hashable, str | Path] | None = None, geodesic: bool = True, naive: bool = True,
+                    best_layout: bool = True) -> dict:
+    """A general policy (``export.export_general``) on ``region`` with ``n_agents`` buoys, zero-shot: behind the
+    wall, on its local sensors, ``evaluate.episodes`` episodes from the evaluation seed at ``start``, losing
+    ``lose`` buoys half-way, in a uniform ``current`` (m/s). Beside it, under the same physics, starts and events,
+    the baselines of ``general_baselines`` (gains from the policy's metadata) and the best layout of the buoys
+    left in service (``best_layout``: no physics, the limit). → coverage (mean, lo, hi, n over episodes), the
+    baselines', ``ratio_to_lloyd``, ``ratio_to_best`` and ``max_outside_m``: the largest distance of any buoy
+    outside the water at any step of any episode. ``seeds`` ({label: policy file}, e.g. every trained seed of
+    the general policy) are run on the same episodes, each under ``"seeds"`` with its ``coverage`` and
+    ``max_outside_m``; the baselines run once for all. ``geodesic``, ``naive`` and ``best_layout`` False leave
+    that comparison out (its ratio is then None); Lloyd always runs."""
+    from replicate.compare.best_layout import best_coverage
+    from replicate.compare.stats import mean_interval
+    from replicate.core.params import SensorsConfig
+    from replicate.world.scenario import horizon
+    from replicate.world.shore import distance_outside
+
+    module, meta = general_policy(policy_path)
+    others = {label: general_policy(path) for label, path in (seeds or {}).items()}
+    ev = params.evaluate
+    steps = horizon(params.general, region, params.world.region_area)
+
+    def episodes(policy, sensors: SensorsConfig | None) -> np.ndarray:
+        """Every buoy's position at every step [T + 1, E, N, 2] and the live buoys' last [E, N_live, 2]."""
+        env, _ = general_evaluation_env(params, region, n_agents, ev.episodes, sensors, current)
+        trace = rollout(env, policy, steps, ev.seed, StartsConfig(start=start, lose=lose))
+        return trace["positions"], trace["live"]
+
+    def covered(live: np.ndarray) -> dict:  # SPEC §8's exact coverage, of the buoys still in service
+        return mean_interval(coverage.coverage_fraction(region.polygon, live, params.coverage.radius,
+                                                       params.coverage.edges))
+
+    def learned(module, meta) -> dict:
+        positions, live = episodes(fleet_policy(module), SensorsConfig(**meta["sensor_config"]))
+        return {"coverage": covered(live),
+                "max_outside_m": float(distance_outside(region.polygon, positions).max()) * region.scale}
+
+    out = {"kind": "general policy", "policy": str(policy_path), "region": region.name, "n_agents": n_agents,
+           "start": start, "lose": lose, "current": list(current) if current else None, "steps": steps,
+           "episodes": ev.episodes, **learned(module, meta), "baselines": {}}
+    if others:
+        out["seeds"] = {label: learned(*policy) for label, policy in others.items()}
+    rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic, naive)
+    for name, policy in rivals.items():
+        out["baselines"][name] = {"coverage": covered(episodes(policy, None)[1]), "gains": how}
+    best = 0.0
+    if best_layout:
+        best = best_coverage(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges)
+        out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
+    lloyd = out["baselines"][lloyd_name(rivals)]["coverage"]["mean"]
+    out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None
+    out["ratio_to_best"] = out["coverage"]["mean"] / best if best > 0 else None
+    return out
+
+
+def fleet_policy(module) -> baselines.Policy:
+    """A general policy's TorchScript module as a deterministic policy of an environment's local sensors."""
+    def policy(env: CoverageEnv) -> np.ndarray:
+        with torch.no_grad():
+            return module(torch.as_tensor(env.observe())).numpy()
+
+    return policy
+
+
+def general_episode(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str,
+                    lose: int = 0, current: tuple[float, float] | None = None,
+                    seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """One episode of a general policy as ``evaluate_policy`` runs it (the wall, its sensors, the event) for
+    the figures: positions [T + 1, N, 2] and the buoys in service [T + 1, N]."""
+    from replicate.core.params import SensorsConfig
+
+    module, meta = general_policy(policy_path)
+    env, steps = general_evaluation_env(params, region, n_agents, 1, SensorsConfig(**meta["sensor_config"]), current)
+    seed = params.evaluate.seed if seed is None else seed
+    trace = rollout(env, fleet_policy(module), steps, seed, StartsConfig(start=start, lose=lose))
+    return trace["positions"][:, 0], trace["alive"][:, 0]
+
+
+def general_policy(path: str | Path):
+    """(module, metadata) of a general policy file, refused by name when it is another kind of policy."""
+    from replicate.learn.policy import load_policy
+
+    if Path(path).name == "actor.pt":
+        raise ConfigError(f"{path}: a general run's actor; export it first (`replicate export RUN`) and give "
+                          "the exported policy file instead")
+    module, meta = load_policy(path)
+    if meta.get("n_agents") != "any" or "sensor_config" not in meta:
+        raise ConfigError(f"{path}: a policy for {meta.get('n_agents')} buoys of one region; --policy takes a "
+                          "general policy (`replicate export` of a general run)")
+    return module, meta

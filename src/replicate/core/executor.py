@@ -1,0 +1,87 @@
+"""Where the pipeline's independent jobs run: processes of this machine (``local``) or tasks of a Ray cluster
+(``ray``), chosen by ``pipeline.executor`` in params.yaml or a command's ``--executor``.
+
+A job is a module-level function applied to a small picklable description (a training cell, an evaluation, an
+Optuna trial's values). Each job starts by setting its own process-wide state (``train.training_process``), so a
+job computes the same bytes in a fresh local process as in a Ray worker; ``tests/core/test_executor.py`` checks that a
+training matrix through a local Ray runtime gives the local executor's curves and actors.
+
+With ``ray``, ``ray.init()`` joins the cluster named by ``RAY_ADDRESS`` or starts a local runtime; every node
+needs this package installed (``pip install '.[ray]'``), since the jobs are its functions.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor
+
+from replicate.core.params import ConfigError
+
+EXECUTORS = ("local", "ray")
+
+
+def check_executor(name: str) -> str:
+    if name not in EXECUTORS:
+        raise ConfigError(f"executor must be one of {', '.join(EXECUTORS)}, got {name!r} (pipeline.executor in "
+                          "params.yaml, or --executor)")
+    return name
+
+
+def configured_executor(params, requested: str | None = None) -> str:
+    """``requested`` (a command's ``--executor``) or else params.yaml's ``pipeline.executor`` (default local)."""
+    return check_executor(requested or params.stages.get("pipeline", {}).get("executor", "local"))
+
+
+def map_jobs(fn: Callable, jobs: Iterable, executor: str = "local", workers: int = 1) -> list:
+    """``[fn(job) for job in jobs]``, in the order of ``jobs``: with ``local`` in ``workers`` processes of this
+    machine, with ``ray`` as one Ray task of one CPU per job (the cluster's CPUs set how many run at once)."""
+    jobs = list(jobs)
+    if check_executor(executor) == "ray":
+        ray = ray_runtime()
+        task = ray.remote(num_cpus=1, max_retries=0)(apply)
+        return ray.get([task.remote(fn, job) for job in jobs])
+    with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
+        return list(pool.map(fn, jobs))
+
+
+def apply(fn: Callable, job):
+    """One job, as a Ray task runs it (``fn`` may be a ``functools.partial``, which ``ray.remote`` refuses)."""
+    return fn(job)
+
+
+def ray_runtime(num_cpus: int | None = None, attempts: int = 3):
+    """The Ray module, initialised: the cluster at ``RAY_ADDRESS`` if set, else a local runtime of ``num_cpus``
+    (default: this machine's cores), without a dashboard.
+
+    A local raylet gives its agents 15 s to report their ports and dies when they miss it ("the current node
+    timed out during startup", ray-project/ray#65983); starting five Python helpers took longer than that on this
+    2-core machine while it trained. A start that times out so is tried again, ``attempts`` times in all."""
+    try:
+        import ray
+    except ImportError as exc:
+        raise ConfigError("the ray executor needs Ray: pip install '.[ray]' (or use the local executor)") from exc
+    if ray.is_initialized():
+        return ray
+    if os.environ.get("RAY_ADDRESS"):
+        ray.init(log_to_driver=False)
+        return ray
+    for attempt in range(1, attempts + 1):
+        try:
+            ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+            return ray
+        except Exception as exc:
+            if "timed out during startup" not in str(exc) or attempt == attempts:
+                raise
+            ray.shutdown()
+            print(f"Ray's local runtime did not start in time (attempt {attempt} of {attempts}); trying again",
+                  file=sys.stderr)
+    return ray
+
+
+def parallel_slots(executor: str, workers: int) -> int:
+    """How many jobs run at once: ``workers`` locally, the cluster's CPUs with Ray."""
+    if check_executor(executor) == "ray":
+        return max(1, int(ray_runtime().cluster_resources().get("CPU", 1)))
+    return max(1, workers)

@@ -1,0 +1,4 @@
+"""How the buoys learn: MADDPG (``maddpg``, ``run_stack``), one shared actor for any fleet (``shared_maddpg``,
+``symmetry``), the trainers (``train``: one region; ``general_train``: any lake), the worlds of training
+(``training_worlds``), the exported policy's modules (``policy``), the arithmetic fingerprint (``fingerprint``)
+and the reduced-episode regression of reward curves (``regression``). Imports ``world`` and ``core``."""

@@ -1,0 +1,83 @@
+"""The exported policy's modules and file: what a buoy's computer loads.
+
+A policy file is TorchScript with a ``metadata.json`` beside the weights: the observation layout, the action's
+meaning and the map between simulation and real coordinates. ``SwarmPolicy`` holds a per-region run's N stacked
+actors, ``FleetPolicy`` the general policy's one shared actor for a fleet of any size. ``toolkit.export`` writes
+them from training checkpoints; every wing that runs a policy reads it with ``load_policy``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import warnings
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from replicate.core import artifacts
+from replicate.core.artifacts import CheckpointError
+from replicate.core.params import SensorsConfig
+
+
+class SwarmPolicy(nn.Module):
+    """a_i = tanh(μ_i(o_i)) for every buoy i at once: obs [N, obs_dim] or [B, N, obs_dim] → actions, same shape
+    with 2 in the last axis."""
+
+    def __init__(self, weights: list[torch.Tensor], biases: list[torch.Tensor]):
+        super().__init__()
+        self.w0, self.w1, self.w2 = (nn.Parameter(w.detach().clone(), requires_grad=False) for w in weights)
+        self.b0, self.b1, self.b2 = (nn.Parameter(b.detach().clone(), requires_grad=False) for b in biases)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        squeeze = obs.dim() == 2
+        x = obs.unsqueeze(0) if squeeze else obs
+        x = x.transpose(0, 1)  # [N, B, obs_dim]
+        x = torch.relu(torch.baddbmm(self.b0, x, self.w0))
+        x = torch.relu(torch.baddbmm(self.b1, x, self.w1))
+        # the 64 → 2 layer as the training actor computes it (maddpg.stacked_matmul): same bits
+        a = torch.tanh(torch.bmm(x, self.w2) + self.b2).transpose(0, 1)
+        return a.squeeze(0) if squeeze else a
+
+
+class FleetPolicy(nn.Module):
+    """a_i = tanh(μ(o_i)) for every buoy of a fleet of any size with the one shared actor: obs [N, obs_dim] or
+    [batch, N, obs_dim] → actions, same shape with 2 in the last axis."""
+
+    def __init__(self, net: nn.Sequential):
+        super().__init__()
+        self.net = net
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return torch.tanh(self.net(obs))
+
+
+def save_policy(module: torch.jit.ScriptModule, metadata: dict, out: str | Path) -> None:
+    """The TorchScript ``module`` with ``metadata`` as its ``metadata.json``, written atomically to ``out``."""
+    buf = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.jit.save(module, buf, _extra_files={"metadata.json": json.dumps(metadata)})
+    artifacts.atomic_write_bytes(out, buf.getvalue())
+
+
+def sensor_config(meta: dict) -> SensorsConfig | None:
+    """The sensors a run's actors observe with (``observation: local``), from their metadata."""
+    return SensorsConfig(**meta["sensors"]) if meta.get("sensors") else None
+
+
+def load_policy(path: str | Path) -> tuple[torch.jit.ScriptModule, dict]:
+    """(policy, metadata) from an exported file."""
+    path = Path(path)
+    if not path.exists():
+        raise CheckpointError(f"{path}: no policy file here")
+    extra = {"metadata.json": ""}
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            module = torch.jit.load(str(path), map_location="cpu", _extra_files=extra)
+        metadata = json.loads(extra["metadata.json"])
+    except Exception as exc:  # noqa: BLE001 - any load failure is a corrupt file
+        raise CheckpointError(f"{path}: not a readable exported policy ({type(exc).__name__}: {exc})") from exc
+    return module, metadata

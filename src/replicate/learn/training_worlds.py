@@ -1,0 +1,56 @@
+"""The general policy's worlds: regions with a fleet each, and their environments behind the shore wall.
+
+A world is a region and a fleet size: the named regions of ``general.regions`` with a fleet of ``general.fleet``,
+and ``general.lakes`` generated training lakes (``lakes.training``, a stream apart from the held-out lakes') with
+their own N. Every environment has the wall, the local sensors and CR's eq. (5)-(6) with the difference credit
+(``general.cover_weight`` and ``union_weight`` as c1 and c2). The training (``general_train``), the study of the
+baselines' gains (``tuning.tune_general_baselines``) and the evaluation (``evaluate.evaluate_policy``) build
+their worlds here, so the baselines are tuned on exactly the worlds the policy trains on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from replicate.core.params import GeneralConfig, Params
+from replicate.world.env import CoverageEnv
+from replicate.world.lakes import lake_region, training
+from replicate.world.regions import Region, make_region
+from replicate.world.scenario import coverage_area, general_env
+
+
+@dataclass
+class World:
+    """One training world: a region, its fleet size, and its E environments (CR reward, wall, local sensors)."""
+
+    region: Region
+    n_agents: int
+    env: CoverageEnv
+
+
+def training_lakes(params: Params, gc: GeneralConfig) -> list[tuple[Region, int]]:
+    """(region, N) of the generated training lakes, the same for every seed."""
+    return [(lake_region(spec, coverage_area(params)), spec.n_agents)
+            for spec in training(gc.lakes, n_range=gc.lake_fleet, ratio_range=gc.lake_ratio)]
+
+
+def baseline_worlds(params: Params, gc: GeneralConfig) -> list[tuple[Region, int]]:
+    """The training distribution the baselines' gains are tuned on: every named region with every fleet size of
+    ``fleet``, and every training lake with its own."""
+    named = [(make_region(name, params.regions[name], params.world.region_area), n)
+             for name in gc.regions for n in gc.fleet]
+    return named + training_lakes(params, gc)
+
+
+def make_worlds(params: Params, gc: GeneralConfig, rng: np.random.Generator, n_envs: int) -> list[World]:
+    """The named regions with a fleet size drawn from ``fleet`` each (from ``rng``), then the training lakes."""
+    worlds = []
+    for name in gc.regions:
+        region = make_region(name, params.regions[name], params.world.region_area)
+        worlds.append((region, int(rng.choice(gc.fleet))))
+    worlds += training_lakes(params, gc)
+    return [World(region, n, general_env(params, gc, region, n, n_envs,
+                                         np.random.SeedSequence(int(rng.integers(2**31)))))
+            for region, n in worlds]

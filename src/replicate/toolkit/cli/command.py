@@ -1,0 +1,111 @@
+"""The ``replicate`` command: the parser of every verb (one module each), and how an error or Ctrl-C ends it."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+
+import shapely
+
+from replicate.core.artifacts import CheckpointError
+from replicate.core.params import ConfigError
+from replicate.toolkit.cli import act, animate, compare, cover, evaluate, export, init, train, train_general, tune
+from replicate.world.regions import RegionError
+
+DESCRIPTION = ("The `replicate` command: train, evaluate, train-general, cover, export, act, tune, compare, init, "
+               "animate (`replicate COMMAND --help` for the options).")
+VERBS = (train, evaluate, train_general, cover, export, act, tune, compare, init, animate)  # the order of --help
+
+
+def common_options(suppress: bool) -> argparse.ArgumentParser:
+    """``--params`` and ``--set``, accepted before the verb and after it (``suppress``: a verb's copy leaves the
+    value given before the verb alone unless given again)."""
+    p = argparse.ArgumentParser(add_help=False)
+    after = "_after_verb" if suppress else ""
+    p.add_argument("--params", dest=f"params{after}", metavar="FILE", default=None if suppress else "params.yaml",
+                   help="parameters file (params.yaml of the working folder, else the defaults installed with the "
+                        "package; `replicate init` writes an editable copy)")
+    p.add_argument("--set", dest=f"set{after}", action="append", metavar="KEY=VALUE", default=None,
+                   help="override a value of the parameters file, e.g. configs.tuned.n_envs=25 (repeatable)")
+    return p
+
+
+class Help(argparse.HelpFormatter):
+    """Help that names a default where there is one worth naming (not None, not a switch that is off)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        named = action.default is not None and action.default is not False and action.default != argparse.SUPPRESS
+        if named and "%(default)" not in text and action.option_strings and not text.endswith(")"):
+            text += " (default: %(default)s)"
+        return text
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="replicate", description=DESCRIPTION, parents=[common_options(False)])
+    sub = parser.add_subparsers(dest="command", required=True)
+    verb = dict(parents=[common_options(True)], formatter_class=Help)
+    regions = "square, rectangle, bedok (params.yaml regions), or a vector file in any CRS"
+    for module in VERBS:
+        module.add(sub, verb, regions)
+    return parser
+
+
+def glued_values(argv: list[str]) -> list[str]:
+    """``--obs -1.2,-1.2;...`` → ``--obs=-1.2,-1.2;...``: argparse takes a value that starts with a minus sign for
+    an option."""
+    out, it = [], iter(argv)
+    for arg in it:
+        if arg == "--obs":
+            value = next(it, None)
+            out.append(arg if value is None else f"--obs={value}")
+        else:
+            out.append(arg)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(glued_values(sys.argv[1:] if argv is None else argv))
+    if getattr(args, "run_option", None) is not None:
+        args.run = args.run or args.run_option
+    args.params = args.params_after_verb or args.params  # --params and --set work before or after the verb
+    args.set = (args.set or []) + (args.set_after_verb or [])
+    warnings.simplefilter("default")
+    if args.command in ("train", "cover", "tune"):
+        from replicate.learn.train import training_process
+
+        training_process()
+    try:
+        return args.func(args)
+    except (ConfigError, RegionError, CheckpointError, OSError, ValueError) as exc:
+        print(f"replicate: error: {exc}", file=sys.stderr)
+        return 2
+    except shapely.errors.GEOSException as exc:
+        print(f"replicate: error: the region's geometry cannot be used ({exc}); check the outline file, or repair "
+              "it (e.g. shapely.make_valid)", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return interrupted(args)
+    except Exception as exc:
+        if not caused_by_ctrl_c(exc):
+            raise
+        return interrupted(args)
+
+
+def caused_by_ctrl_c(exc: BaseException) -> bool:
+    """Whether ``exc`` wraps a KeyboardInterrupt: numba turns one that lands while it loads a compiled function
+    from its cache into an error of its own, raised from the interrupt."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def interrupted(args) -> int:
+    hint = getattr(args, "interrupted_hint", None)
+    print("replicate: interrupted" + (f"; {hint}" if hint else ""), file=sys.stderr)
+    return 130

@@ -1,0 +1,125 @@
+"""``replicate evaluate``: SPEC §8 metrics of a run, a baseline, or a general policy zero-shot on any region, as
+JSON."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from pathlib import Path
+
+from shapely import affinity
+
+from replicate.core import artifacts
+from replicate.core.params import MAX_AGENTS, ConfigError, Params, load_params
+from replicate.toolkit.cli.inputs import (
+    claim_out_file,
+    overrides,
+    resolve_region,
+    run_region,
+)
+
+
+def add(sub, verb: dict, regions: str) -> None:
+    """The ``evaluate`` verb's options."""
+    e = sub.add_parser("evaluate", help="SPEC §8 metrics of a run, a baseline or a general policy, as JSON", **verb)
+    e.add_argument("run", nargs="?", default=None, help="a run folder written by `replicate train`")
+    e.add_argument("--run", dest="run_option", default=None, help=argparse.SUPPRESS)  # the older spelling
+    e.add_argument("--baseline", default=None,
+                   help="instead of a run: random, naive, lloyd, lloyd_converged (hand-set gains)")
+    e.add_argument("--region", default=None, help=f"{regions} (default: the run's own)")
+    e.add_argument("--config", default="paper", help="a baseline runs with this config's physics and T")
+    e.add_argument("--out", default=None,
+                   help="output JSON (default: RUN/metrics.json, or metrics/baseline-NAME-REGION.json)")
+    e.add_argument("--force", action="store_true", help="replace --out if it exists")
+    g = e.add_argument_group("a general policy, zero-shot on any region (instead of a run)")
+    g.add_argument("--policy", default=None, help="a general policy file (`replicate export` of a general run)")
+    g.add_argument("--n-agents", type=int, default=None, help="buoys (default: world.n_agents, 9); the region is "
+                   "scaled to the paper's density, 1 m² per buoy")
+    g.add_argument("--starts", choices=("corner", "random"), default="corner",
+                   help="release in the corner patch (default) or scattered over the water")
+    g.add_argument("--lose", type=int, default=0, help="buoys lost half-way (default 0)")
+    g.add_argument("--current", default=None, help="a uniform drift U,V in simulation m/s (top speed 2)")
+    g.add_argument("--geodesic", action="store_true", help="also geodesic Lloyd (cells and paths through the "
+                   "water; the slowest comparison, left out by default)")
+    e.set_defaults(func=run)
+
+
+
+def run(args: argparse.Namespace) -> int:
+    from replicate.compare.evaluate import evaluate_baseline, evaluate_run
+
+    params = load_params(args.params, overrides(args.set))
+    if args.policy is not None:
+        return evaluate_general(args, params)
+    given = [flag for flag, value, default in (("--n-agents", args.n_agents, None), ("--starts", args.starts, "corner"),
+                                               ("--lose", args.lose, 0), ("--current", args.current, None),
+                                               ("--geodesic", args.geodesic, False))
+             if value != default]
+    if given:
+        raise ConfigError(f"{', '.join(given)}: options of a general policy; give --policy FILE with them")
+    if (args.run is None) == (args.baseline is None):
+        raise ConfigError("give exactly one of a run folder (`replicate evaluate RUN`) or --baseline NAME")
+    if args.baseline is not None and not args.region:
+        raise ConfigError("--baseline needs --region")
+    region = run_region(args.run, params, args.region) if args.run is not None else \
+        resolve_region(args.region, params)
+    default = (Path(args.run) / "metrics.json" if args.run is not None
+               else Path(f"metrics/baseline-{args.baseline}-{region.name}.json"))
+    out = claim_out_file(Path(args.out) if args.out else default, args.force)
+    if args.run is not None:
+        result = evaluate_run(args.run, params, region, progress=True)
+    else:
+        result = evaluate_baseline(args.baseline, params, region, args.config, progress=True)
+    artifacts.write_json(out, result)
+    cov = result["coverage"]
+    print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes "
+          f"of this trained policy; a training seed of its own can land outside it); wrote {out}")
+    return 0
+
+
+def evaluate_general(args: argparse.Namespace, params: Params) -> int:
+    """``evaluate --policy``: a general policy on ``--region`` with its fleet, starts and events."""
+    from replicate.compare.evaluate import evaluate_policy, lloyd_name
+
+    if args.run is not None or args.baseline is not None or args.config != "paper":
+        raise ConfigError("--policy evaluates a general policy; give no run folder, --baseline or --config with it")
+    if not args.region:
+        raise ConfigError("--policy needs --region (square, rectangle, bedok or a vector file)")
+    if not Path(args.policy).is_file():
+        raise ConfigError(f"--policy {args.policy}: no such file; export a general run with `replicate export`")
+    from replicate.compare.evaluate import general_policy
+
+    general_policy(args.policy)  # refused by name before any work if it is not a general policy
+    n = params.world.n_agents if args.n_agents is None else args.n_agents
+    if not 2 <= n <= MAX_AGENTS:
+        raise ConfigError(f"--n-agents must be from 2 to {MAX_AGENTS}, got {n}")
+    if not 0 <= args.lose < n:
+        raise ConfigError(f"--lose must be from 0 to {n - 1} (a fleet of {n} keeps at least one), got {args.lose}")
+    current = None
+    if args.current is not None:
+        try:
+            current = tuple(float(v) for v in args.current.split(","))
+        except ValueError:
+            current = ()
+        if len(current) != 2 or not all(math.isfinite(v) for v in current):
+            raise ConfigError(f"--current expects two numbers U,V (simulation m/s), got {args.current!r}")
+    region = resolve_region(args.region, params)
+    s = math.sqrt(n / params.world.n_agents)  # the paper's density for any fleet: 9 buoys on 9 m²
+    region = dataclasses.replace(region, polygon=affinity.scale(region.polygon, s, s, origin=(0, 0)),
+                                 scale=region.scale / s)
+    out = claim_out_file(Path(args.out or f"policy-{region.name}-n{n}.json"), args.force)
+    result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current,
+                             geodesic=args.geodesic)
+    artifacts.write_json(out, result)
+    cov, rivals = result["coverage"], result["baselines"]
+    lloyd = rivals[lloyd_name(rivals)]
+
+    def ratio(key):
+        return "n/a" if result[key] is None else f"{result[key]:.3f}"
+
+    print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes); "
+          f"Lloyd {lloyd['coverage']['mean']:.3f} (gains {lloyd['gains']}), ratio {ratio('ratio_to_lloyd')}; "
+          f"best layout {rivals['best_layout']['coverage']['mean']:.3f}, ratio {ratio('ratio_to_best')}; "
+          f"furthest outside the water {result['max_outside_m']:.3g} m; wrote {out}")
+    return 0

@@ -1,0 +1,78 @@
+"""``replicate export``: A run's actors as one TorchScript file with its metadata."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from pathlib import Path
+
+from replicate.core.params import ConfigError, load_params
+from replicate.toolkit.cli.inputs import (
+    claim_out_file,
+    overrides,
+    run_region,
+)
+
+
+def add(sub, verb: dict, regions: str) -> None:
+    """The ``export`` verb's options."""
+    x = sub.add_parser("export", help="export a run's actors as one TorchScript file with metadata", **verb)
+    x.add_argument("run", nargs="?", default=None, help="a run folder written by `replicate train`")
+    x.add_argument("--run", dest="run_option", default=None, help=argparse.SUPPRESS)
+    x.add_argument("--region", default=None, help=f"{regions} (default: the run's own)")
+    x.add_argument("--out", default=None, help="TorchScript file (default: RUN/policy.pt)")
+    x.add_argument("--force", action="store_true", help="replace --out if it exists")
+    x.add_argument("--baseline-gains", default=None, metavar="FILE",
+                   help="a general run: carry these baseline gains (`replicate tune general-baselines`) in the "
+                        "policy, for `evaluate --policy` to compare with")
+    x.set_defaults(func=run)
+
+
+
+def run(args: argparse.Namespace) -> int:
+    from replicate.toolkit.export import export_general, export_policy
+
+    params = load_params(args.params, overrides(args.set))
+    if args.run is None:
+        raise ConfigError("export needs a run folder: `replicate export RUN`")
+    if (Path(args.run) / "actor.pt").exists():  # a general run: one shared actor for any fleet and lake
+        if args.region is not None:
+            raise ConfigError(f"{args.run}: a general run has no region of its own; export it without --region")
+        gains = read_baseline_gains(args.baseline_gains)
+        out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force)
+        export_general(Path(args.run) / "actor.pt", out, params.world.sensitivity, gains)
+        print(f"exported the general policy (any fleet, local sensors) to {out}"
+              + (f", with the baselines' gains of {args.baseline_gains}" if gains else ""))
+        return 0
+    if args.baseline_gains is not None:
+        raise ConfigError("--baseline-gains goes with a general run; a per-region run has its own baselines")
+    region = run_region(args.run, params, args.region)
+    out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force)
+    meta = export_policy(Path(args.run) / "actors.pt", region, out, params.world.sensitivity)
+    print(f"exported {meta['n_agents']} actors ({meta['observation']}) for {meta['region']} to {out}")
+    return 0
+
+
+def read_baseline_gains(path: str | None) -> dict | None:
+    """The general baselines' study result (``replicate tune general-baselines``), checked, or None."""
+    import json
+
+    if path is None:
+        return None
+    from replicate.core.params import LloydConfig, NaiveConfig
+
+    try:
+        gains = json.loads(Path(path).read_text())
+        naive = NaiveConfig(**gains["naive_tuned"]["gains"])
+        lloyd = LloydConfig(**gains["lloyd_tuned"]["gains"], converged_steps=0)
+        values = [*dataclasses.asdict(naive).values(), lloyd.gain, lloyd.damping]
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+            raise ValueError(f"gains must be finite numbers, got {values}")
+    except FileNotFoundError:
+        raise ConfigError(f"--baseline-gains {path}: no such file; `replicate tune general-baselines` writes it") \
+            from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"--baseline-gains {path}: not the general baselines' gains ({type(exc).__name__}: "
+                          f"{exc}); write it with `replicate tune general-baselines`") from None
+    return gains

@@ -1,0 +1,56 @@
+"""``replicate train-general``: One seed of the general policy (one network for any lake and fleet) into a run
+folder."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+from replicate.core.params import ConfigError, check_seed, load_params
+from replicate.toolkit.cli.inputs import (
+    overrides,
+)
+
+
+def add(sub, verb: dict, regions: str) -> None:
+    """The ``train-general`` verb's options."""
+    tg = sub.add_parser("train-general", help="train one policy for every lake and fleet (params.yaml general)",
+                        **verb)
+    tg.add_argument("--seed", type=int, default=0, help="training seed, 0 to 2**32 - 1 (default 0)")
+    tg.add_argument("--episodes", type=int, default=None, help="episodes (default: general.episodes)")
+    tg.add_argument("--out", required=True, help="the run folder to write (actor.pt, curve.csv.gz, run.json)")
+    tg.add_argument("--force", action="store_true", help="replace a finished run in --out")
+    tg.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tg.set_defaults(func=run)
+
+
+
+def run(args: argparse.Namespace) -> int:
+    """``train-general``: one seed of the general policy into ``--out`` (no checkpoints: an interrupted run starts
+    again; 3,000 episodes take about half an hour of one core)."""
+    import shutil
+
+    from replicate.learn.general_train import train_recorded
+    from replicate.learn.train import training_process
+
+    params = load_params(args.params, overrides(args.set))
+    check_seed(args.seed)
+    config = params.general
+    if args.episodes is not None:
+        if args.episodes < config.n_envs:
+            raise ConfigError(f"--episodes must be at least general.n_envs ({config.n_envs}), got {args.episodes}")
+        config = dataclasses.replace(config, episodes=args.episodes)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: a file, not a folder; choose a folder for the run")
+    if out.exists() and any(out.iterdir()):
+        if not args.force:
+            raise ConfigError(f"--out {out}: holds a run already; choose a new folder or pass --force to replace it")
+        shutil.rmtree(out)
+    training_process()
+    # recorded as the stages record a seed: train_general or train_design keeps this run when its values match
+    summary = train_recorded(dataclasses.replace(params, general=config), args.seed, out, not args.no_progress)
+    print(f"best validation coverage {summary['selected_validation_coverage']:.3f} at episode "
+          f"{summary['selected_episode']}; wrote {out} (`replicate export {out}` makes its policy file)")
+    return 0

@@ -1,0 +1,186 @@
+"""Cover any waterbody: outline (file or OSM place) → UTM → region → a policy → metrics, spread plot, and the
+comparison with the baselines (``replicate cover``).
+
+Two ways to get the policy:
+
+* ``general`` (default): the general policy (``policies/general.pt``, installed with the package), zero-shot in
+  seconds, or fine-tuned on this lake for ``finetune`` episodes (``cover_general``); compared with tuned naive
+  swarming, tuned Lloyd and the best layout under the same physics (the shore as a wall).
+* ``cr``: per-region CR-MARL trained from scratch with a configuration of params.yaml (``cover``); compared with
+  the converged Lloyd layout.
+
+Two scales:
+
+* ``paper`` (default): the region is scaled to the paper's 9 m², N buoys of coverage radius R = 0.5 m.
+* ``real``: the region keeps its size in metres and the buoys get a real coverage radius ``radius_m``. The
+  simulation unit becomes ``L = radius_m / R`` metres, so the coverage polygon, the start patch, the SW ranges
+  and the physics keep their paper values in simulation units; the region is ``A_real / L²`` simulation m², and
+  the episode length grows with the region's linear size, ``T = T_paper · sqrt(A_sim / 9)`` (never shorter).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+from shapely import affinity
+
+from replicate.compare.evaluate import evaluate_baseline, evaluate_run
+from replicate.core import artifacts
+from replicate.core.params import ConfigError, Params, run_config
+from replicate.learn.train import train
+from replicate.toolkit import plots
+from replicate.world.env import start_patch
+from replicate.world.osm import OSMUnavailable, outline_from_osm_xml, query_osm
+from replicate.world.regions import Region, RegionError, check_polygon, region_from_file, write_run_region
+
+
+def outline_file(region: str | None, place: str | None, name: str | None, workdir: Path) -> Path:
+    """A vector file holding the outline: the file given, an OSM XML file parsed, or an OSM place queried."""
+    if (region is None) == (place is None):
+        raise RegionError("give exactly one of --region FILE or --place NAME")
+    if region is not None:
+        path = Path(region)
+        if path.suffix.lower() == ".osm":
+            outline = outline_from_osm_xml(path, name or path.stem)
+            outline.write(workdir / "outline.geojson")
+            return workdir / "outline.geojson"
+        return path
+    try:
+        outline = query_osm(place, name or place.split(",")[0], {"natural": "water"}, timeout=10)
+    except OSMUnavailable as exc:
+        raise RegionError(
+            f"{exc}. Offline, download the outline elsewhere (GeoJSON, shapefile, GeoPackage or OSM XML) "
+            f"and pass it with --region FILE"
+        ) from exc
+    outline.write(workdir / "outline.geojson")
+    return workdir / "outline.geojson"
+
+
+def scaled_setup(path: Path, params: Params, n_agents: int | None, radius_m: float | None) -> tuple[Region, Params]:
+    """The region and the params of a cover run (see the module docstring for the two scales)."""
+    world = params.world if n_agents is None else dataclasses.replace(params.world, n_agents=int(n_agents))
+    if world.n_agents < 1:
+        raise RegionError("at least one buoy is needed")
+    if radius_m is None:
+        region = region_from_file(path, area=world.region_area)
+    else:
+        if radius_m <= 0:
+            raise RegionError(f"the coverage radius must be positive, got {radius_m} m")
+        real = region_from_file(path, area=None)
+        unit = radius_m / params.coverage.radius  # metres per simulation metre
+        sim = check_polygon(affinity.scale(real.polygon, 1 / unit, 1 / unit, origin=(0, 0)), real.name)
+        region = dataclasses.replace(real, polygon=sim, scale=unit, notes=real.notes + (
+            f"real scale: 1 simulation metre = {unit:g} m (coverage radius {radius_m:g} m)",))
+        horizon = max(world.episode_length, math.ceil(world.episode_length * math.sqrt(sim.area / world.region_area)))
+        world = dataclasses.replace(world, episode_length=horizon, region_area=sim.area)
+    return region, dataclasses.replace(params, world=world)
+
+
+def cover(
+    path: Path, params: Params, out: Path, episodes: int, seed: int = 0, n_agents: int | None = None,
+    radius_m: float | None = None, config: str = "tuned", progress: bool = True,
+) -> dict:
+    """Train CR-MARL on the waterbody in ``path`` and compare its coverage with the converged Lloyd layout."""
+    region, params = scaled_setup(path, params, n_agents, radius_m)
+    rc = run_config(params, config, "cr")
+    n_envs = rc.algo.n_envs
+    episodes = max(n_envs, episodes - episodes % n_envs)
+    train(rc, region, episodes, seed, out / "run", params.train.checkpoint_every, resume=False, progress=progress)
+    write_run_region(out / "run", region)  # evaluate and export read the run's region from the folder
+    method = evaluate_run(out / "run", params, region, progress=progress)
+    lloyd = evaluate_baseline("lloyd_converged", params, region, config, progress=progress)
+    c = params.coverage
+    xy = method["example"]["final_positions"]
+    patch = start_patch(region.polygon, params.world.start_patch)
+    plots.spread(region.polygon, patch, np.array(xy), c.radius, c.edges, out / "spread.png",
+                 f"CR-MARL ({config}) on {region.name}: final positions of an evaluation episode",
+                 np.array(method["example"]["trajectory"]),
+                 f"coverage {method['coverage']['mean']:.2f}, Lloyd {lloyd['coverage']['mean']:.2f}")
+    summary = {
+        "region": region.name,
+        "utm_crs": region.utm_crs,
+        "scale_m_per_sim_m": region.scale,
+        "area_m2": region.area * region.scale**2,
+        "n_agents": params.world.n_agents,
+        "radius_m": c.radius * region.scale,
+        "episode_length": params.world.episode_length,
+        "episodes": episodes,
+        "coverage": method["coverage"],
+        "lloyd_coverage": lloyd["coverage"],
+        "ratio_to_lloyd": method["coverage"]["mean"] / max(lloyd["coverage"]["mean"], 1e-12),
+        "notes": list(region.notes),
+    }
+    artifacts.write_json(out / "summary.json", summary)
+    return summary
+
+
+def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune: int = 0, seed: int = 0,
+                  n_agents: int | None = None, radius_m: float | None = None, progress: bool = True) -> dict:
+    """The general policy on the waterbody in ``path``: zero-shot, or fine-tuned there first for ``finetune``
+    episodes (``general_train`` on this one lake, from the policy's weights, keeping the best-validated actor,
+    which is the starting one unless training beats it; written to ``out/finetune`` and ``out/policy.pt``).
+    Evaluated from the corner patch with its baselines (``evaluate.evaluate_policy``); ``out/spread.png`` and
+    ``out/summary.json``."""
+    from replicate.compare.evaluate import evaluate_policy, general_episode, general_policy, lloyd_name
+    from replicate.core.params import SensorsConfig
+    from replicate.learn.general_train import GeneralTrainer
+    from replicate.toolkit.export import export_general
+    from replicate.world.scenario import horizon
+
+    region, params = scaled_setup(path, params, n_agents, radius_m)
+    n = params.world.n_agents
+    module, meta = general_policy(policy)
+    steps = horizon(params.general, region, params.world.region_area)
+    if finetune:
+        gc = params.general  # the policy's own sensors and width, this lake's horizon
+        weights = dict(module.state_dict())
+        try:
+            symmetry = meta.get("symmetry", "none")  # a symmetric actor's MLP sits inside its average
+            first = "net.net.0.weight" if symmetry != "none" else "net.0.weight"
+            learner = dataclasses.replace(gc.learner, hidden=int(weights[first].shape[0]), symmetry=symmetry)
+            gc = dataclasses.replace(gc, episodes=finetune - finetune % gc.n_envs, episode_length=steps,
+                                     sensors=SensorsConfig(**meta["sensor_config"]), learner=learner)
+            trainer = GeneralTrainer(params, seed, out / "finetune", progress, gc, worlds=[(region, n)],
+                                     actor=weights)
+        except (KeyError, RuntimeError, ValueError) as exc:  # another network than the shared actor, or symmetry
+            raise ConfigError(f"{policy}: its network is not the general policy's actor ({type(exc).__name__}); "
+                              "give a policy exported from a general run (`replicate export RUN`)") from None
+        trained = trainer.run()
+        policy = out / "policy.pt"
+        export_general(out / "finetune" / "actor.pt", policy, params.world.sensitivity, meta.get("baseline_gains"))
+    result = evaluate_policy(policy, region, params, n, "corner", progress=progress, geodesic=False)
+    c = params.coverage
+    trace, _ = general_episode(policy, region, params, n, "corner")
+    lloyd = lloyd_name(result["baselines"])
+    lloyd_coverage = result["baselines"][lloyd]["coverage"]
+    plots.spread(region.polygon, start_patch(region.polygon, params.world.start_patch), trace[-1], c.radius,
+                 c.edges, out / "spread.png", f"general policy{' fine-tuned' if finetune else ''} on {region.name}: "
+                 "an evaluation episode", trace,
+                 f"coverage {result['coverage']['mean']:.2f}, Lloyd {lloyd_coverage['mean']:.2f}")
+    summary = {
+        "region": region.name,
+        "utm_crs": region.utm_crs,
+        "scale_m_per_sim_m": region.scale,
+        "area_m2": region.area * region.scale**2,
+        "n_agents": n,
+        "radius_m": c.radius * region.scale,
+        "episode_length": steps,
+        "policy": str(policy),
+        "finetune_episodes": trained["general"]["episodes"] if finetune else 0,
+        "coverage": result["coverage"],
+        "baselines": result["baselines"],
+        "lloyd_baseline": lloyd,
+        "lloyd_coverage": lloyd_coverage,
+        "ratio_to_lloyd": result["ratio_to_lloyd"],
+        "ratio_to_best": result["ratio_to_best"],
+        "max_outside_m": result["max_outside_m"],
+        "notes": list(region.notes),
+    }
+    if finetune:
+        summary["finetune"] = {k: trained[k] for k in ("selected_episode", "selected_validation_coverage",
+                                                        "cpu_seconds")}
+    artifacts.write_json(out / "summary.json", summary)
+    return summary

@@ -1,0 +1,125 @@
+"""Policies a buoy can run: the trained decentralised actors as one TorchScript file per swarm.
+
+The file holds the N stacked actors and, as ``metadata.json``, everything needed to use them without this
+package: the observation layout, the action meaning, and the map between simulation and real coordinates
+(``real = offset + scale · sim`` in the region's UTM CRS). Load it with ``torch.jit.load`` anywhere torch runs.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from replicate.core import artifacts
+from replicate.core.artifacts import CheckpointError
+from replicate.core.params import SensorsConfig, to_dict
+from replicate.learn.policy import FleetPolicy, SwarmPolicy, load_policy, save_policy, sensor_config
+from replicate.learn.train import load_actors
+from replicate.world.env import observation_columns
+from replicate.world.regions import Region
+from replicate.world.sensors import describe
+
+
+def export_policy(actors_path: str | Path, region: Region, out: str | Path, sensitivity: float = 5.0) -> dict:
+    """Write the run's actors as TorchScript with their metadata; returns the metadata."""
+    net, meta = load_actors(actors_path)
+    ident = meta["identity"]
+    if ident.get("region_key") is not None:
+        from replicate.world.geometry import region_key
+
+        if region_key(region.polygon) != ident["region_key"]:
+            raise CheckpointError(f"{actors_path}: trained on another region than {region.name!r}")
+    with warnings.catch_warnings():  # TorchScript is deprecated upstream but is what a buoy's runtime loads
+        warnings.simplefilter("ignore", DeprecationWarning)
+        module = torch.jit.script(SwarmPolicy(list(net.weights), list(net.biases)))
+    metadata = {
+        "format": "buoy-swarm-coverage policy v1",
+        "n_agents": int(net.weights[0].shape[0]),
+        "agents": [f"buoy_{i}" for i in range(int(net.weights[0].shape[0]))],
+        "observation": meta["observation"],
+        "observation_layout": observation_columns(meta["observation"], sensor_config(meta)),
+        "action": f"force direction in [-1, 1]^2 per buoy; force = {sensitivity} * action (simulation units)",
+        "input_shape": "[N, obs_dim] or [batch, N, obs_dim], simulation coordinates",
+        "region": region.name,
+        "region_wkt_sim": region.polygon.wkt,
+        "scale_m_per_sim_m": region.scale,
+        "utm_crs": region.utm_crs,
+        "offset": list(region.offset),
+        "to_real": "utm = offset + scale * sim; sim = (utm - offset) / scale",
+        "trained": {k: ident[k] for k in ("config", "method", "seed", "episodes")},
+    }
+    if meta["observation"] == "local":
+        metadata["sensors"] = describe(sensor_config(meta))
+        metadata["input_shape"] = "[N, obs_dim] or [batch, N, obs_dim], simulation units, in the buoy's own frame"
+    save_policy(module, metadata, out)
+    return metadata
+
+
+def export_general(actor_path: str | Path, out: str | Path, sensitivity: float = 5.0,
+                   baseline_gains: dict | None = None) -> dict:
+    """Write a general policy (``general_train``'s ``actor.pt``) as TorchScript with its metadata, carrying
+    ``baseline_gains`` (naive swarming's and Lloyd's, tuned on its training worlds) when given."""
+    from replicate.learn.shared_maddpg import SharedActor
+
+    saved = artifacts.torch_load(actor_path, "general policy")
+    try:
+        sensors = SensorsConfig(**saved["sensors"])
+        actor = SharedActor(len(saved["columns"]), 2, saved["hidden"], saved.get("symmetry", "none"),
+                            saved["columns"])
+        actor.load_state_dict(saved["actor"])
+        trained = {"seed": saved["seed"], "selected_episode": saved["selected_episode"]}
+    except (KeyError, TypeError, RuntimeError, ValueError) as exc:
+        raise CheckpointError(f"{actor_path}: not a complete general policy's actor ({type(exc).__name__}: {exc}); "
+                              "train it again with `replicate train-general`") from None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        module = torch.jit.script(FleetPolicy(actor.net.eval()))
+    metadata = {
+        "format": "buoy-swarm-coverage general policy v1",
+        "n_agents": "any",
+        "observation": "local",
+        "observation_layout": saved["columns"],
+        "sensors": describe(sensors),
+        "sensor_config": to_dict(sensors),
+        "action": f"force direction in [-1, 1]^2 per buoy; force = {sensitivity} * action (simulation units)",
+        "input_shape": "[N, obs_dim] or [batch, N, obs_dim], simulation units, in the buoy's own frame",
+        "scale": "simulation metres: the coverage radius is 0.5; real metres = simulation metres * radius_m / 0.5",
+        "trained": trained,
+    }
+    if saved.get("symmetry", "none") != "none":  # an actor averaged over the compass's turns (``symmetry``)
+        metadata["symmetry"] = saved["symmetry"]
+    if baseline_gains:
+        metadata["baseline_gains"] = {k: {"gains": baseline_gains[k]["gains"], "study": baseline_gains[k].get("study")}
+                                      for k in ("naive_tuned", "lloyd_tuned")}
+    save_policy(module, metadata, out)
+    return metadata
+
+
+def act(path: str | Path, observations: np.ndarray, real: bool = False) -> np.ndarray:
+    """Commands for every buoy from its observation [N, obs_dim]; ``real`` observations are UTM metres (and m/s)
+    and are mapped to simulation units first."""
+    module, meta = load_policy(path)
+    obs = np.asarray(observations, dtype=float)
+    dim = len(meta["observation_layout"])
+    if obs.ndim != 2 or obs.shape[1] != dim or (meta["n_agents"] != "any" and obs.shape[0] != meta["n_agents"]):
+        raise ValueError(f"expected observations of shape ({meta['n_agents']}, {dim}) "
+                         f"[{', '.join(meta['observation_layout'])}], got {obs.shape}")
+    if real:
+        if meta.get("n_agents") == "any":
+            raise ValueError(f"{path}: a general policy reads its sensors in simulation units (radius 0.5); give "
+                             "its observations in simulation units (without --real)")
+        if meta.get("utm_crs") is None:
+            raise ValueError(f"{path}: the policy's region ({meta.get('region')}) is synthetic, with no map "
+                             "coordinates; give its observations in simulation units (without --real)")
+        obs = obs.copy()
+        if meta["observation"] == "local":  # lengths and speeds in the buoy's frame; a heard-mask stays
+            lengths = [not c.endswith("_heard") for c in meta["observation_layout"]]
+            obs[:, lengths] = obs[:, lengths] / meta["scale_m_per_sim_m"]
+        else:
+            obs[:, :2] = (obs[:, :2] - np.asarray(meta["offset"])) / meta["scale_m_per_sim_m"]
+            obs[:, 2:] = obs[:, 2:] / meta["scale_m_per_sim_m"]
+    with torch.no_grad():
+        return module(torch.as_tensor(obs, dtype=torch.float32)).numpy()

@@ -1,0 +1,471 @@
+"""Coverage geometry (SPEC §4): the 30-edge coverage polygon, the per-agent Cover term, the covered union.
+
+Two paths compute the same quantities:
+
+* the **reference** (``cover_terms_exact``, ``union_area_exact``): exact polygon algebra with shapely, one
+  polygon per agent;
+* the **fast path** (``CoverageGeometry``), used in training. Its exactness rests on Minkowski algebra: with K
+  the coverage polygon centred at the origin (centrally symmetric, 30 is even),
+
+  - ``Cov(p) ⊂ Reg``  ⇔  ``p ∈ Reg ⊖ K`` (the eroded region, an exact polygon),
+  - ``Cov(p) ∩ Reg = ∅``  ⇔  ``p ∉ Reg ⊕ K`` (the dilated region), and then
+    ``dist(Reg, Cov(p)) = dist(p, Reg ⊕ K)`` exactly;
+
+  only ``A(Cov(p) ∩ Reg)`` in the partial band is interpolated, bilinearly from a table of exact shapely
+  areas. The union area is ``Σ_a A(Cov(a) ∩ Reg)`` minus the overlap excess counted on a raster, so it is
+  exact whenever no two coverage polygons overlap. ``tests/world/test_geometry.py`` bounds both errors against the
+  reference on random configurations of every region.
+
+Arrays are batched ``[E, N, ...]``: E parallel environments, N agents.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import shapely
+from numba import njit
+from shapely.geometry import Polygon
+from tqdm import tqdm  # a terminal's bar: in a notebook's worker processes the widget bar cannot reach the page
+
+
+def polygon_offsets(radius: float, edges: int) -> np.ndarray:
+    """Vertices of the regular ``edges``-gon of circumradius ``radius`` centred at the origin: [edges, 2]."""
+    angles = 2.0 * np.pi * np.arange(edges) / edges
+    return np.stack([radius * np.cos(angles), radius * np.sin(angles)], axis=1)
+
+
+def coverage_polygons(xy: np.ndarray, radius: float, edges: int) -> np.ndarray:
+    """Cov(a) for every agent (SPEC §4): shapely polygons, shape of ``xy`` without its last axis."""
+    xy = np.asarray(xy, dtype=float)
+    ring = xy[..., None, :] + polygon_offsets(radius, edges)
+    return shapely.polygons(ring)
+
+
+@dataclass(frozen=True)
+class CoverTerms:
+    """The three cases of eq. (5) per agent, arrays [E, N].
+
+    ``area`` = A(Cov(a) ∩ Reg) (equals A(Cov(a)) when inside), ``inside`` = Cov(a) ⊂ Reg,
+    ``disjoint`` = Cov(a) ∩ Reg = ∅, ``distance`` = dist(Reg, Cov(a)) (0 unless disjoint).
+    """
+
+    area: np.ndarray
+    inside: np.ndarray
+    disjoint: np.ndarray
+    distance: np.ndarray
+
+
+def cover_terms_exact(region: Polygon, xy: np.ndarray, radius: float, edges: int) -> CoverTerms:
+    """Reference: exact shapely polygon algebra for eq. (5)'s cases. xy: [..., 2]."""
+    cov = coverage_polygons(xy, radius, edges)
+    inside = shapely.within(cov, region)
+    disjoint = ~shapely.intersects(cov, region)
+    area = shapely.area(shapely.intersection(cov, region))
+    distance = np.where(disjoint, shapely.distance(cov, region), 0.0)
+    return CoverTerms(area=area, inside=inside, disjoint=disjoint, distance=distance)
+
+
+def union_area_exact(region: Polygon, xy: np.ndarray, radius: float, edges: int) -> np.ndarray:
+    """Reference: A((∪_a Cov(a)) ∩ Reg) per environment, exact. xy: [E, N, 2] → [E]."""
+    cov = coverage_polygons(xy, radius, edges)
+    union = shapely.union_all(cov, axis=-1)
+    return shapely.area(shapely.intersection(union, region))
+
+
+def coverage_fraction_exact(region: Polygon, xy: np.ndarray, radius: float, edges: int) -> np.ndarray:
+    """SPEC §8 coverage fraction A((∪ Cov) ∩ Reg) / A(Reg), exact. xy: [E, N, 2] → [E]."""
+    return union_area_exact(region, xy, radius, edges) / region.area
+
+
+def minkowski(region: Polygon, offsets: np.ndarray) -> tuple[Polygon, Polygon]:
+    """(Reg ⊖ K, Reg ⊕ K) for a centrally symmetric convex K given by its vertices ``offsets`` [V, 2].
+
+    The boundary swept by K is the union of the convex hulls of (edge ⊕ K) over every edge of every ring.
+    """
+    rings = [region.exterior, *region.interiors]
+    hulls = []
+    for ring in rings:
+        pts = np.asarray(ring.coords)
+        a, b = pts[:-1], pts[1:]
+        cloud = np.concatenate([a[:, None, :] + offsets, b[:, None, :] + offsets], axis=1)
+        hulls.append(shapely.convex_hull(shapely.multipoints(cloud)))
+    band = shapely.union_all(np.concatenate(hulls))
+    eroded = region.difference(band)
+    dilated = region.union(band)
+    return eroded, dilated
+
+
+class CoverageGeometry:
+    """Fast, batched eq. (5)/(6) geometry for one region and one coverage polygon (see module docstring).
+
+    ``closed=True`` reads eq. (5)'s cases with closed sets, as the shapely reference does: a coverage polygon
+    touching the shore from inside is "inside", one touching it from outside "partial" (area 0). With
+    ``closed=False`` both exact contacts fall to the next case ("partial", "disjoint"): the branches the
+    ``paper`` and ``tuned`` runs were trained with, kept for them. A buoy clamped to the ``tuned`` geofence at
+    R from the region's side touches it from outside exactly, so the two readings train differently there; the
+    shore wall keeps buoys in contact all the time and uses closed sets."""
+
+    def __init__(self, region: Polygon, radius: float, edges: int, table_spacing: float, raster_spacing: float,
+                 closed: bool = False):
+        if not (0 < table_spacing <= radius / 2 and 0 < raster_spacing <= radius / 2):
+            raise ValueError(f"table_spacing and raster_spacing must lie in (0, R/2] = (0, {radius / 2:g}] m: a "
+                             "coarser grid does not resolve the coverage polygon")
+        self.region = region
+        self.radius = radius
+        self.edges = edges
+        self.closed = closed
+        self.offsets = polygon_offsets(radius, edges)
+        self.cov_area = float(Polygon(self.offsets).area)
+        self.eroded, self.dilated = minkowski(region, self.offsets)
+        shapely.prepare(self.eroded)
+        shapely.prepare(self.dilated)
+        self._build_table(table_spacing)
+        self._build_raster(raster_spacing)
+
+    # ---- per-agent terms of eq. (5) ------------------------------------------------------------------
+    def _build_table(self, h: float) -> None:
+        self.table_origin, self.table_h, self.table = _area_table(
+            self.region.wkb, self.radius, self.edges, h, self.eroded.wkb, self.dilated.wkb
+        )
+
+    def cover_terms(self, xy: np.ndarray) -> CoverTerms:
+        """eq. (5)'s cases for every agent. xy: [E, N, 2] → CoverTerms of [E, N] arrays."""
+        flat = xy.reshape(-1, 2)
+        x, y = flat[:, 0], flat[:, 1]
+        test = shapely.intersects_xy if self.closed else shapely.contains_xy
+        inside = test(self.eroded, x, y)
+        touching = test(self.dilated, x, y)
+        disjoint = ~touching
+        area = np.where(inside, self.cov_area, 0.0)
+        partial = touching & ~inside
+        if partial.any():
+            area[partial] = np.clip(self._interpolate(flat[partial]), 0.0, self.cov_area)
+        distance = np.zeros(len(flat))
+        if disjoint.any():
+            distance[disjoint] = shapely.distance(self.dilated, shapely.points(flat[disjoint]))
+        shape = xy.shape[:-1]
+        return CoverTerms(area.reshape(shape), inside.reshape(shape), disjoint.reshape(shape), distance.reshape(shape))
+
+    def _interpolate(self, pts: np.ndarray) -> np.ndarray:
+        u = (pts - self.table_origin) / self.table_h
+        i = np.clip(np.floor(u).astype(np.int64), 0, np.array(self.table.shape) - 2)
+        f = u - i
+        t = self.table
+        i0, j0 = i[:, 0], i[:, 1]
+        fx, fy = f[:, 0], f[:, 1]
+        return (
+            t[i0, j0] * (1 - fx) * (1 - fy)
+            + t[i0 + 1, j0] * fx * (1 - fy)
+            + t[i0, j0 + 1] * (1 - fx) * fy
+            + t[i0 + 1, j0 + 1] * fx * fy
+        )
+
+    # ---- union term of eq. (6) -----------------------------------------------------------------------
+    def _build_raster(self, h: float, subpixel: int = 8) -> None:
+        # The grid covers the region's box padded by the stencil's reach, so a stamp never leaves it: an agent
+        # with A(Cov ∩ Reg) > 0 lies within R of the region. Cells outside the region are masked out.
+        self.raster_h = h
+        self.subpixel = subpixel
+        w = int(np.ceil(self.radius / h)) + 1
+        minx, miny, maxx, maxy = self.region.bounds
+        pad = 2 * w + 2  # agent up to R outside the region, plus the stencil's reach
+        self.raster_origin = np.array([minx - pad * h, miny - pad * h])
+        self.nx = int(np.ceil((maxx - minx) / h)) + 2 * pad + 1
+        self.ny = int(np.ceil((maxy - miny) / h)) + 2 * pad + 1
+        cx = self.raster_origin[0] + (np.arange(self.nx) + 0.5) * h
+        cy = self.raster_origin[1] + (np.arange(self.ny) + 0.5) * h
+        gx, gy = np.meshgrid(cx, cy, indexing="ij")
+        self.mask = shapely.contains_xy(self.region, gx.ravel(), gy.ravel())  # [nx * ny], x-major
+        # Stencils: cells whose centre lies in K for an agent at sub-pixel offset ((q + 0.5) / subpixel) h. K is
+        # convex, so each column dx of a stencil is one run of rows: stencil_lo/hi [subpixel², 2w + 1] hold the
+        # run's first and last dy (lo > hi: an empty column).
+        d = np.arange(-w, w + 1)
+        dx, dy = np.meshgrid(d, d, indexing="ij")
+        normals = self.offsets + np.roll(self.offsets, -1, axis=0)
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)  # edge normals of K
+        apothem = self.radius * np.cos(np.pi / self.edges)
+        self.stencil_reach = w
+        self.stencil_lo = np.full((subpixel * subpixel, 2 * w + 1), w + 1, np.int64)
+        self.stencil_hi = np.full((subpixel * subpixel, 2 * w + 1), -w - 1, np.int64)
+        for qx in range(subpixel):
+            for qy in range(subpixel):
+                fx, fy = (qx + 0.5) / subpixel, (qy + 0.5) / subpixel
+                rel = np.stack([(dx + 0.5 - fx) * h, (dy + 0.5 - fy) * h], axis=-1)
+                inside = (rel @ normals.T).max(axis=-1) <= apothem  # [2w + 1, 2w + 1]
+                k = qx * subpixel + qy
+                for col in np.nonzero(inside.any(axis=1))[0]:
+                    rows = d[inside[col]]
+                    assert len(rows) == rows[-1] - rows[0] + 1  # one run per column (K convex)
+                    self.stencil_lo[k, col], self.stencil_hi[k, col] = rows[0], rows[-1]
+        # each stencil's bounding box relative to the agent's cell, [subpixel², 4]: dx0, dx1, dy0, dy1 (inclusive)
+        filled = self.stencil_lo <= self.stencil_hi
+        lo, hi = self.stencil_lo, self.stencil_hi
+        self.stencil_box = np.stack([
+            np.where(filled, d, w + 1).min(axis=1), np.where(filled, d, -w - 1).max(axis=1),
+            np.where(filled, lo, w + 1).min(axis=1), np.where(filled, hi, -w - 1).max(axis=1),
+        ], axis=1)
+        # the raster kernel needs a run in every column of a stencil's box: as many filled columns as box columns
+        assert (filled.sum(axis=1) == self.stencil_box[:, 1] - self.stencil_box[:, 0] + 1).all()  # empty: never equal
+        # per column, how many of its first r cells are in the region: [nx, ny + 1]
+        self.mask_prefix = np.zeros((self.nx, self.ny + 1), np.int64)
+        self.mask_prefix[:, 1:] = np.cumsum(self.mask.reshape(self.nx, self.ny), axis=1)
+
+    def union_area(self, xy: np.ndarray, area: np.ndarray, marginal: bool = False):
+        """A((∪_a Cov(a)) ∩ Reg) per environment: xy [E, N, 2], area [E, N] from ``cover_terms`` → [E].
+
+        With ``marginal=True`` also returns each agent's own contribution
+        A(∪_b Cov(b) ∩ Reg) − A(∪_{b≠a} Cov(b) ∩ Reg), [E, N] (the difference reward of SPEC §6).
+        """
+        n_env = area.shape[0]
+        total = area.sum(axis=1)
+        contribution = area.copy()
+        # Only agents closer than 2R to another can overlap (the circumradius bounds K).
+        involved = _near_another(xy, (2 * self.radius) ** 2) & (area > 0)
+        if not involved.any():
+            return (total, contribution) if marginal else total
+        env_idx, agent_idx = np.nonzero(involved)
+        u = (xy[env_idx, agent_idx] - self.raster_origin) / self.raster_h
+        cell = np.floor(u).astype(np.int64)
+        q = ((u - cell) * self.subpixel).astype(np.int64)
+        k = q[:, 0] * self.subpixel + q[:, 1]
+        box = self.stencil_box[k] + cell[:, [0, 0, 1, 1]]  # each stamp's bounding box in cells, [M, 4]
+        shared = _overlap_runs(env_idx, cell, k, box, self.stencil_lo, self.stencil_hi, self.stencil_reach,
+                               self.mask_prefix, marginal)
+        cell_area = self.raster_h**2
+        excess = np.bincount(env_idx, weights=shared[:, 0], minlength=n_env)
+        if marginal:
+            own = area[env_idx, agent_idx] - shared[:, 1] * cell_area
+            contribution[env_idx, agent_idx] = np.maximum(own, 0.0)
+            return total - excess * cell_area, contribution
+        return total - excess * cell_area
+
+
+@njit(cache=True)
+def _near_another(xy, reach2):  # pragma: no cover
+    """Whether each agent is closer than √reach2 to another of its environment: xy [E, N, 2] → [E, N] bool.
+    (In numpy the pairwise test over [E, N, N, 2] cost more than the raster kernel below.)"""
+    n_env, n = xy.shape[0], xy.shape[1]
+    out = np.zeros((n_env, n), np.bool_)
+    for e in range(n_env):
+        for i in range(n):
+            for j in range(i + 1, n):
+                dx = xy[e, i, 0] - xy[e, j, 0]
+                dy = xy[e, i, 1] - xy[e, j, 1]
+                if dx * dx + dy * dy < reach2:
+                    out[e, i] = True
+                    out[e, j] = True
+    return out
+
+
+@njit(cache=True)
+def _overlap_runs(env, cell, k, box, lo, hi, reach, prefix, marginal):  # pragma: no cover
+    """Raster kernel of ``union_area``: per stamp, (its environment's excess of the stamps' cells over their
+    union, on the environment's first stamp; its cells covered twice or more, counted only when ``marginal``),
+    cells inside the region only.
+
+    A stamp is agent ``cell`` [M, 2]'s stencil ``k`` [M]: rows ``lo[k, c] .. hi[k, c]`` of column c, inside its
+    bounding box ``box`` [M, 4] (x0, x1, y0, y1, inclusive, in cells); stamps of one environment are consecutive
+    (``env`` [M]). K is convex and a raster cell at most R/2 wide, so a stamp meets every column of its box in
+    exactly one run of rows (``_build_raster`` checks it), and the kernel works on runs, not cells. It sweeps an
+    environment's columns left to right with the stamps that meet the column (they enter and leave at their
+    boxes' sides), kept in order of their runs' first rows: from one column to the next that order barely
+    changes, so re-sorting it is about linear. ``prefix`` [nx, ny + 1] counts a piece's cells in the region
+    (row r: the column's region cells below row r).
+
+    Excess of a column = the runs' region cells − their union's region cells (the union merged from the runs in
+    order). When ``marginal``, a sweep over the runs' ends in row order (``_runs_alone``) keeps instead how many
+    stamps cover the current piece and the sum of their numbers (the stamp itself while only one does): a
+    stamp's cells covered twice or more are its cells less those it covers alone. Returns out [M, 2]."""
+    m = len(cell)
+    out = np.zeros((m, 2))
+    alone = np.zeros(m)  # cells a stamp covers by itself, in the columns it shares
+    first = np.empty(m, np.int64)  # the current column's run of each stamp: rows first .. end - 1
+    end = np.empty(m, np.int64)
+    left = np.ascontiguousarray(box[:, 0])
+    by_left = np.arange(m)  # an environment's stamps in the order they enter the sweep
+    by_first = np.empty(m, np.int64)  # the stamps meeting the column, in order of first row
+    at = np.empty(2 * m, np.int64)  # the marginal sweep's events: row, +1/−1, stamp
+    step = np.empty(2 * m, np.int64)
+    owner = np.empty(2 * m, np.int64)
+    start = 0
+    while start < m:
+        stop = start
+        while stop < m and env[stop] == env[start]:
+            stop += 1
+        entering, meeting = by_left[start:stop], by_first[start:stop]
+        _sort_by(entering, left, stop - start)
+        x_last = box[start, 1]
+        for i in range(start + 1, stop):
+            x_last = max(x_last, box[i, 1])
+        entered, count, excess = 0, 0, 0.0
+        for x in range(left[entering[0]], x_last + 1):
+            count = _keep_reaching(meeting, count, box, x)
+            while entered < stop - start and left[entering[entered]] <= x:
+                meeting[count] = entering[entered]
+                count += 1
+                entered += 1
+            if count < 2:  # fewer than two stamps: nothing shared in this column
+                continue
+            for j in range(count):
+                i = meeting[j]
+                col = x - cell[i, 0] + reach
+                first[i] = cell[i, 1] + lo[k[i], col]
+                end[i] = cell[i, 1] + hi[k[i], col] + 1
+            _sort_by(meeting, first, count)
+            if marginal:
+                excess += _runs_alone(x, meeting, count, first, end, prefix, at, step, owner, out, alone)
+                continue
+            cells, union = 0, 0
+            bottom, top = first[meeting[0]], end[meeting[0]]  # the merged run being built
+            for j in range(count):
+                i = meeting[j]
+                cells += prefix[x, end[i]] - prefix[x, first[i]]
+                if first[i] > top:
+                    union += prefix[x, top] - prefix[x, bottom]
+                    bottom, top = first[i], end[i]
+                elif end[i] > top:
+                    top = end[i]
+            union += prefix[x, top] - prefix[x, bottom]  # the last merged run
+            excess += cells - union
+        out[start, 0] = excess
+        start = stop
+    if marginal:
+        out[:, 1] -= alone
+    return out
+
+
+@njit(cache=True)
+def _runs_alone(x, meeting, count, first, end, prefix, at, step, owner, out, alone):  # pragma: no cover
+    """One column of ``_overlap_runs``'s marginal sweep over the runs of ``meeting`` [count]: their ends, in row
+    order in ``at``, ``step`` (+1 a start, −1 an end) and ``owner`` (the stamp), mark the pieces between them; each
+    run adds its region cells to ``out[:, 1]`` and the cells it covers alone to ``alone``. Runs are half-open
+    [first, end): the pieces between consecutive events, empty ones skipped, are what the counts hold for.
+    → the column's excess (a piece covered c ≥ 1 times: c − 1 a cell)."""
+    events = 0
+    for j in range(count):
+        i = meeting[j]
+        events = _insert(at, step, owner, events, first[i], 1, i)
+        events = _insert(at, step, owner, events, end[i], -1, i)
+    covering, ids, row, excess = 0, 0, at[0], 0
+    for e in range(events):
+        if at[e] > row and covering > 0:
+            cells = prefix[x, at[e]] - prefix[x, row]
+            excess += (covering - 1) * cells
+            if covering == 1:
+                alone[ids] += cells
+        row = at[e]
+        covering += step[e]
+        ids += step[e] * owner[e]
+        if step[e] > 0:
+            out[owner[e], 1] += prefix[x, end[owner[e]]] - prefix[x, row]
+    return excess
+
+
+@njit(cache=True)
+def _insert(at, step, owner, count, row, delta, stamp):  # pragma: no cover
+    """Insert the event (row, delta, stamp) into the first ``count`` events, kept in row order. → count + 1."""
+    j = count
+    while j > 0 and at[j - 1] > row:
+        at[j], step[j], owner[j] = at[j - 1], step[j - 1], owner[j - 1]
+        j -= 1
+    at[j], step[j], owner[j] = row, delta, stamp
+    return count + 1
+
+
+@njit(cache=True)
+def _sort_by(order, key, n):  # pragma: no cover
+    """Insertion sort of ``order[:n]`` by ``key[order]``, in place: about linear on an order that is nearly right."""
+    for j in range(1, n):
+        v = order[j]
+        i = j
+        while i > 0 and key[order[i - 1]] > key[v]:
+            order[i] = order[i - 1]
+            i -= 1
+        order[i] = v
+
+
+@njit(cache=True)
+def _keep_reaching(order, n, box, x):  # pragma: no cover
+    """Drop from ``order[:n]`` the stamps whose box ends before column ``x``, keeping the rest's order. → count."""
+    kept = 0
+    for j in range(n):
+        i = order[j]
+        if box[i, 1] >= x:
+            order[kept] = i
+            kept += 1
+    return kept
+
+
+TABLE_VERSION = 1
+
+
+def cache_dir() -> Path:
+    """Where area tables are cached: $REPLICATE_CACHE, else ~/.cache/replicate."""
+    return Path(os.environ.get("REPLICATE_CACHE", Path.home() / ".cache" / "replicate"))
+
+
+@lru_cache(maxsize=16)
+def _area_table(region_wkb: bytes, radius: float, edges: int, h: float, eroded_wkb: bytes, dilated_wkb: bytes):
+    """Exact A(Cov(p) ∩ Reg) on a grid of spacing h over the dilated region's box.
+
+    Cached in memory and on disk (a few seconds of shapely work per region), keyed by every input."""
+    key = hashlib.sha256(repr((TABLE_VERSION, region_wkb, radius, edges, h)).encode()).hexdigest()[:24]
+    path = cache_dir() / f"area-table-{key}.npz"
+    if path.exists():
+        try:
+            with np.load(path) as z:
+                return z["origin"], float(z["h"]), z["table"]
+        except (OSError, ValueError, KeyError):
+            pass  # a damaged cache file is rebuilt below
+    origin, h, table = _build_area_table(region_wkb, radius, edges, h, eroded_wkb, dilated_wkb)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, origin=origin, h=h, table=table)
+        os.replace(tmp, path)
+    except OSError:
+        pass  # a read-only home only costs the rebuild next time
+    return origin, h, table
+
+
+def _build_area_table(region_wkb, radius, edges, h, eroded_wkb, dilated_wkb):
+    region = shapely.from_wkb(region_wkb)
+    eroded = shapely.from_wkb(eroded_wkb)
+    dilated = shapely.from_wkb(dilated_wkb)
+    offsets = polygon_offsets(radius, edges)
+    minx, miny, maxx, maxy = dilated.bounds
+    origin = np.array([minx - 2 * h, miny - 2 * h])
+    nx = int(np.ceil((maxx - minx) / h)) + 5
+    ny = int(np.ceil((maxy - miny) / h)) + 5
+    gx, gy = np.meshgrid(origin[0] + np.arange(nx) * h, origin[1] + np.arange(ny) * h, indexing="ij")
+    x, y = gx.ravel(), gy.ravel()
+    table = np.zeros(nx * ny)
+    # Nodes within one cell diagonal of the band need exact areas; deeper nodes are A(K) or 0.
+    pad = 2 * h
+    grown = dilated.buffer(pad)
+    shrunk = eroded.buffer(-pad) if not eroded.is_empty else eroded
+    near = shapely.contains_xy(grown, x, y) & ~shapely.contains_xy(shrunk, x, y)
+    deep_inside = shapely.contains_xy(shrunk, x, y)
+    table[deep_inside] = Polygon(offsets).area
+    pts = np.stack([x[near], y[near]], axis=1)
+    areas = np.empty(len(pts))
+    chunk = 20_000  # the first run on a long shore builds for a minute or more: a bar on a terminal
+    for start in tqdm(range(0, len(pts), chunk), desc="coverage area table (cached for later runs)", unit="chunk",
+                      disable=None if len(pts) > 5 * chunk else True, leave=False):
+        cov = shapely.polygons(pts[start:start + chunk, None, :] + offsets)
+        areas[start:start + chunk] = shapely.area(shapely.intersection(cov, region))
+    table[near] = areas
+    return origin, h, table.reshape(nx, ny)
+
+
+def region_key(region: Polygon) -> str:
+    """A short stable hash of a region polygon (for caches and checkpoint metadata)."""
+    return hashlib.sha256(region.wkb).hexdigest()[:16]

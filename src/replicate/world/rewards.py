@@ -1,0 +1,66 @@
+"""The paper's two reward designs as pure functions (SPEC §3-§4). Arrays are batched [E, N]: E environments,
+N agents. Every function returns rewards in the paper's units; any rescaling is the learner's business.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from replicate.core.params import CRRewardConfig, SWRewardConfig
+from replicate.world.geometry import CoverTerms
+
+
+def sw_region_attraction(signed_distance: np.ndarray, r1: float, r2: float) -> np.ndarray:
+    """eq. (sw-RegAtt): +R1 if D(x_a) < 0 (inside), else −R2 − D(x_a). [E, N] → [E, N]."""
+    return np.where(signed_distance < 0, r1, -r2 - signed_distance)
+
+
+def pair_distances(xy: np.ndarray) -> np.ndarray:
+    """d(n, i) for every unordered pair i < n. xy: [E, N, 2] → [E, N(N−1)/2]."""
+    i, n = np.triu_indices(xy.shape[1], k=1)
+    return np.linalg.norm(xy[:, n] - xy[:, i], axis=-1)
+
+
+def sw_inter_agent(
+    xy: np.ndarray, alpha: float, beta: float, prop_range: tuple[float, float], coll_range: tuple[float, float]
+) -> np.ndarray:
+    """eq. (sw-InterAg) with eq. (3)-(4): α·#{pairs in [a, b]} − β·#{pairs in [c, d]}, closed ranges.
+
+    xy: [E, N, 2] → [E].
+    """
+    d = pair_distances(xy)
+    in_prop = (d >= prop_range[0]) & (d <= prop_range[1])
+    in_coll = (d >= coll_range[0]) & (d <= coll_range[1])
+    return alpha * in_prop.sum(axis=1) - beta * in_coll.sum(axis=1)
+
+
+def sw_reward(signed_distance: np.ndarray, xy: np.ndarray, cfg: SWRewardConfig) -> np.ndarray:
+    """SW-MARL shared reward r = Σ_a Reward(a) + Inter_Agent_Reward, the same r for every agent (SPEC §3).
+
+    signed_distance: [E, N], xy: [E, N, 2] → [E, N] (each row constant).
+    """
+    per_agent = sw_region_attraction(signed_distance, cfg.r1, cfg.r2)
+    r = per_agent.sum(axis=1) + sw_inter_agent(xy, cfg.alpha, cfg.beta, cfg.prop_range, cfg.coll_range)
+    return np.repeat(r[:, None], xy.shape[1], axis=1)
+
+
+def cover_reward(terms: CoverTerms, r1: float, r2: float, r3: float) -> np.ndarray:
+    """eq. (5): R1 + A(Cov) inside; R2 + A(Cov ∩ Reg) overlapping; −R3 − dist(Reg, Cov) disjoint. [E, N]."""
+    partial = ~terms.inside & ~terms.disjoint
+    return np.where(terms.inside, r1 + terms.area, np.where(partial, r2 + terms.area, -r3 - terms.distance))
+
+
+def overall_reward(cover: np.ndarray, union_term: np.ndarray, c1: float, c2: float) -> np.ndarray:
+    """eq. (6): c1·Cover_Reward(a) + c2·Overall_Area_Coverage.
+
+    cover: [E, N]; union_term: [E] (the paper: A((∪ Cov) ∩ Reg), shared by all agents) or [E, N] (a per-agent
+    credit such as the marginal contribution) → [E, N].
+    """
+    if union_term.ndim == 1:
+        union_term = union_term[:, None]
+    return c1 * cover + c2 * union_term
+
+
+def cr_reward(terms: CoverTerms, union_term: np.ndarray, cfg: CRRewardConfig) -> np.ndarray:
+    """CR-MARL per-agent reward Overall_Reward(a) (SPEC §4): eq. (6) over eq. (5). → [E, N]."""
+    return overall_reward(cover_reward(terms, cfg.r1, cfg.r2, cfg.r3), union_term, cfg.c1, cfg.c2)

@@ -1,0 +1,153 @@
+"""The one place a configuration becomes an environment.
+
+Every environment the project steps is built here, from the typed parameters: a per-region run's (``run_env``:
+the reward, credit, observation and fence of ``configs.*``), the same world for its evaluation and the baselines'
+(``evaluation_env``), and the general policy's worlds (``general_env``: behind the shore wall, observing the local
+sensors, CR's eq. (5)-(6) with the difference credit, ``general.cover_weight`` / ``union_weight`` as c1 and c2).
+The terms a learner is paid beside the paper's reward (its scale and the shore penalty, ``Pay``) are set here too
+and applied by the environment, so a trainer only reads ``StepResult.pay``.
+
+To change the reward: the reward's arithmetic is in ``rewards``, which terms a scenario uses and with which weights
+is in this module, and their values in ``params.yaml``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from replicate.core.params import (
+    CoverageConfig,
+    CRRewardConfig,
+    GeneralConfig,
+    Params,
+    RunConfig,
+    SensorsConfig,
+    region_world,
+)
+from replicate.world.coverage import cover_area
+from replicate.world.currents import Current
+from replicate.world.env import CoverageEnv, Pay
+from replicate.world.lakes import lake_region
+from replicate.world.regions import Region, make_region
+
+
+def cr_weights(cr: CRRewardConfig, c1: float | None = None, c2: float | None = None) -> CRRewardConfig:
+    """Eq. (5)-(6) with the coverage term's weight ``c1`` and the union term's ``c2`` where given."""
+    if c1 is not None:
+        cr = dataclasses.replace(cr, c1=float(c1))
+    if c2 is not None:
+        cr = dataclasses.replace(cr, c2=float(c2))
+    return cr
+
+
+def run_env(region: Region, rc: RunConfig, n_envs: int, seed, reward: bool = True) -> CoverageEnv:
+    """A per-region run's environment (reward, credit, observation, fence and pay of its config);
+    ``reward=False`` gives the same world without reward, for validation rollouts."""
+    algo = rc.algo
+    return CoverageEnv(
+        region, rc.world, rc.coverage, n_envs=n_envs, reward=rc.method.reward if reward else None,
+        sw=rc.sw_reward, cr=cr_weights(rc.cr_reward, c2=algo.union_weight), observation=algo.observation,
+        sensors_config=algo.sensors, geofence=algo.geofence, wall=algo.shore == "wall",
+        union_credit=algo.union_credit, pay=Pay(scale=algo.reward_scale), seed=seed,
+    )
+
+
+def evaluation_env(region: Region, rc: RunConfig, n_envs: int, observation: str = "position") -> CoverageEnv:
+    """The world of a per-region run without reward: where its actors (observing ``observation``) and the
+    baselines (positions) are evaluated and the baselines' gains tuned."""
+    return CoverageEnv(region, rc.world, rc.coverage, n_envs=n_envs, observation=observation,
+                       sensors_config=rc.algo.sensors, geofence=rc.algo.geofence, wall=rc.algo.shore == "wall")
+
+
+def general_env(params: Params, gc: GeneralConfig, region: Region, n_agents: int, n_envs: int, seed,
+                reward: bool = True, sensors: bool = True) -> CoverageEnv:
+    """E environments of one general world. ``reward``: CR's reward and the general training's pay (a policy
+    being trained); ``sensors``: the local observation (a policy acting; the baselines read positions, and skip the
+    shore rays each step)."""
+    world = dataclasses.replace(region_world(params, None), n_agents=n_agents, episode_length=gc.episode_length)
+    return CoverageEnv(region, world, params.coverage, n_envs=n_envs, reward="cr" if reward else None,
+                       cr=cr_weights(params.cr_reward, gc.cover_weight, gc.union_weight),
+                       observation="local" if sensors else "position", sensors_config=gc.sensors, wall=True,
+                       union_credit="difference", pay=Pay(gc.reward_scale, gc.shore_penalty), seed=seed)
+
+
+def general_evaluation_env(params: Params, region: Region, n_agents: int, n_envs: int, sensors,
+                           current: tuple[float, float] | None) -> tuple[CoverageEnv, int]:
+    """The world a general policy is evaluated in → (environment, T): behind the wall, T for the region's size
+    (``horizon``), in a uniform ``current`` (m/s) when given; observing ``sensors`` (a ``SensorsConfig``, the
+    policy's), or nothing for the baselines (None)."""
+    steps = horizon(params.general, region, params.world.region_area)
+    config = dataclasses.replace(params.general, episode_length=steps, sensors=sensors or params.general.sensors)
+    env = general_env(params, config, region, n_agents, n_envs, 0, reward=False, sensors=sensors is not None)
+    if current is not None:
+        env.set_current(Current.uniform(np.broadcast_to(np.asarray(current, float), (n_envs, 2))))
+    return env, steps
+
+
+class Unset:
+    """The default of an option whose ``None`` means something (no geofence, the paper's c2)."""
+
+
+UNSET = Unset()
+
+
+def scaled_coverage(coverage: CoverageConfig, radius: float) -> CoverageConfig:
+    """``coverage`` with coverage radius ``radius``; below the configured radius its lookup grids shrink with it
+    (as many cells per radius), so that a small radius is resolved as finely as the paper's."""
+    shrink = min(1.0, radius / coverage.radius)
+    return dataclasses.replace(coverage, radius=radius, table_spacing=coverage.table_spacing * shrink,
+                               raster_spacing=coverage.raster_spacing * shrink)
+
+
+def option_env(params: Params, region: str | Region, *, config: str | None = None, n_agents: int | None = None,
+               radius: float | None = None, reward: str | None = "cr", observation: str | None = None,
+               sensors_config: SensorsConfig | None = None, geofence: float | None | Unset = UNSET,
+               reward_scale: float | None = None, union_credit: str | None = None,
+               union_weight: float | None | Unset = UNSET, episode_length: int | None = None,
+               shore: str | None = None) -> CoverageEnv:
+    """One environment from keyword options (the PettingZoo environment's): ``config`` (``"paper"`` or
+    ``"tuned"``) gives a configuration's reward options and world bounds, each option given overrides its value
+    one by one; with neither, the paper's defaults."""
+    algo = params.configs[config] if config is not None else None
+
+    def pick(given, key: str, default):  # an option given, else the config's, else the paper's default
+        if given is not None and given is not UNSET:
+            return given
+        return getattr(algo, key) if algo is not None else default
+
+    world = region_world(params, region if isinstance(region, str) else None)
+    if n_agents is not None:
+        world = dataclasses.replace(world, n_agents=int(n_agents))
+    if episode_length is not None:
+        world = dataclasses.replace(world, episode_length=int(episode_length))
+    coverage = params.coverage if radius is None else scaled_coverage(params.coverage, float(radius))
+    if isinstance(region, str):
+        region = make_region(region, params.regions[region], world.region_area)
+    fence = geofence if geofence is not UNSET else (algo.geofence if algo is not None else None)
+    weight = union_weight if union_weight is not UNSET else (algo.union_weight if algo is not None else None)
+    return CoverageEnv(
+        region, world, coverage, n_envs=1, reward=reward, sw=params.sw_reward,
+        cr=cr_weights(params.cr_reward, c2=weight),
+        observation=pick(observation, "observation", "position"),
+        sensors_config=pick(sensors_config, "sensors", SensorsConfig()), geofence=fence,
+        wall=pick(shore, "shore", "fence") == "wall", union_credit=pick(union_credit, "union_credit", "shared"),
+        pay=Pay(scale=float(pick(reward_scale, "reward_scale", 1.0))),
+    )
+
+
+def coverage_area(params: Params) -> float:
+    """A(Cov): the area of one buoy's coverage polygon (a regular ``edges``-gon of circumradius R)."""
+    return cover_area(params.coverage.radius, params.coverage.edges)
+
+
+def horizon(gc: GeneralConfig, region: Region, region_area: float) -> int:
+    """Steps of an evaluation episode on ``region``: ``episode_length``, grown with the lake's linear size beyond
+    the paper's area (a lake 4× as large gets twice the steps), so that buoys can cross any lake."""
+    return max(gc.episode_length, int(np.ceil(gc.episode_length * np.sqrt(region.area / region_area))))
+
+
+def named_lakes(params: Params, specs) -> dict[str, tuple[Region, int]]:
+    """{name: (region, the fleet it is drawn for)} of generated lakes' recipes (``lakes.LakeSpec``)."""
+    return {(r := lake_region(spec, coverage_area(params))).name: (r, spec.n_agents) for spec in specs}

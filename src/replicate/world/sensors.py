@@ -1,0 +1,216 @@
+"""What a buoy senses around itself, with no absolute position: its own velocity, the buoys it hears, and how far
+the shore is. A policy fed only these is the same function in every lake and for every fleet size.
+
+Each sensor is one function over arrays batched ``[E, N, ...]`` (E environments, N buoys); ``local_observation``
+concatenates them in the order of ``columns``, which the exported policy's metadata lists. Directions are the
+world's (a compass), not the buoy's: a buoy has no heading.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+from shapely.geometry.polygon import orient
+
+
+def own_velocity(vel: np.ndarray) -> np.ndarray:
+    """The buoy's velocity in the world frame, [E, N, 2] → [E, N, 2]: through the water (what a log reads) or over
+    the ground (its displacement over the last step / dt, what a GPS reads: the drift and the shore's stop
+    included), as ``env.observe`` passes it for ``SensorsConfig.velocity``."""
+    return vel
+
+
+def neighbours(pos: np.ndarray, k: int, comm_range: float, alive: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` nearest other buoys within ``comm_range`` of each buoy, nearest first: their positions relative
+    to it, [E, N, k, 2], and a mask, [E, N, k] (1 for a buoy heard, 0 for an empty slot, whose position is 0).
+    Lost buoys (``alive`` [E, N] False) are not heard. pos: [E, N, 2]."""
+    e, n = pos.shape[:2]
+    rel = pos[:, None, :, :] - pos[:, :, None, :]  # [E, N (self), N (other), 2]: other − self
+    dist = np.linalg.norm(rel, axis=-1)
+    heard = dist <= comm_range
+    heard[:, np.arange(n), np.arange(n)] = False
+    if alive is not None:
+        heard &= alive[:, None, :]
+    dist = np.where(heard, dist, np.inf)
+    slots = min(k, n - 1)
+    order = np.argsort(dist, axis=-1, kind="stable")[..., :slots]  # [E, N, slots]
+    near = np.take_along_axis(rel, order[..., None], axis=2)
+    mask = np.take_along_axis(heard, order, axis=2)
+    out_rel, out_mask = np.zeros((e, n, k, 2)), np.zeros((e, n, k))
+    out_rel[:, :, :slots] = np.where(mask[..., None], near, 0.0)
+    out_mask[:, :, :slots] = mask
+    return out_rel, out_mask
+
+
+def ray_directions(rays: int) -> np.ndarray:
+    """Unit vectors of ``rays`` compass directions, east first, counter-clockwise. → [rays, 2]."""
+    angle = 2 * np.pi * np.arange(rays) / rays
+    unit = np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    return np.where(np.abs(unit) < 1e-12, 0.0, unit)  # due south is (0, −1), not (−1.8e-16, −1)
+
+
+def shore_segments(water: Polygon) -> np.ndarray:
+    """Every edge of the shoreline (outer ring and islands), oriented so that the water lies to its left.
+    → [S, 4] rows (ax, ay, bx, by)."""
+    oriented = orient(water, sign=1.0)  # exterior counter-clockwise, holes clockwise
+    rows = []
+    for ring in (oriented.exterior, *oriented.interiors):
+        xy = np.asarray(ring.coords)
+        rows.append(np.concatenate([xy[:-1], xy[1:]], axis=1))
+    return np.concatenate(rows)
+
+
+VERTEX = 1e-12  # of an edge's length: a ray through a corner meets both edges there despite rounding
+GRAZING = 1e-9  # sine of the angle below which a ray runs along an edge (a buoy on the shore looking along it)
+
+
+@numba.njit(cache=True)
+def _ray_distances(origins, directions, segments, max_range, out):  # pragma: no cover - compiled
+    for m in range(origins.shape[0]):
+        px, py = origins[m, 0], origins[m, 1]
+        for r in range(directions.shape[0]):
+            dx, dy = directions[r, 0], directions[r, 1]
+            best = max_range
+            for s in range(segments.shape[0]):
+                ax, ay, bx, by = segments[s, 0], segments[s, 1], segments[s, 2], segments[s, 3]
+                if min(ax, bx) > px + best or max(ax, bx) < px - best or \
+                        min(ay, by) > py + best or max(ay, by) < py - best:
+                    continue
+                ex, ey = bx - ax, by - ay
+                denom = dx * ey - dy * ex  # |e| sin(angle): > 0 when the ray crosses this edge from the water out
+                if denom <= GRAZING * np.sqrt(ex * ex + ey * ey):  # into the water, or along the edge
+                    continue
+                qx, qy = ax - px, ay - py
+                t = (qx * ey - qy * ex) / denom
+                u = (qx * dy - qy * dx) / denom
+                if 0.0 <= t < best and -VERTEX <= u <= 1.0 + VERTEX:
+                    best = t
+            out[m, r] = best
+
+
+def shore_distances(pos: np.ndarray, segments: np.ndarray, directions: np.ndarray, max_range: float) -> np.ndarray:
+    """Distance from each buoy to where the shoreline takes it out of the water along each direction, capped at
+    ``max_range``: [E, N, 2] → [E, N, rays]. Only crossings from the water out count, so a buoy resting on the
+    shore reads 0 towards the land and the open water's width away from it. ``segments``: ``shore_segments``;
+    ``directions``: ``ray_directions``."""
+    flat = np.ascontiguousarray(pos.reshape(-1, 2), dtype=np.float64)
+    out = np.empty((len(flat), len(directions)))
+    _ray_distances(flat, np.ascontiguousarray(directions, dtype=np.float64), segments, float(max_range), out)
+    return out.reshape(*pos.shape[:-1], len(directions))
+
+
+def shore_distances_reference(pos: np.ndarray, water: Polygon, directions: np.ndarray, max_range: float
+                              ) -> np.ndarray:
+    """``shore_distances`` by shapely, for points strictly inside the water: the nearest point where each ray
+    meets the shoreline. Slow; the tests' reference."""
+    flat = pos.reshape(-1, 2)
+    ends = flat[:, None, :] + max_range * directions[None, :, :]
+    starts = np.repeat(flat[:, None], len(directions), 1)
+    lines = shapely.linestrings(np.stack([starts, ends], axis=2).reshape(-1, 2, 2))
+    hits = shapely.intersection(lines, water.boundary)
+    starts = shapely.points(np.repeat(flat, len(directions), axis=0))
+    dist = np.where(shapely.is_empty(hits), max_range, shapely.distance(starts, hits))
+    return np.minimum(dist, max_range).reshape(*pos.shape[:-1], len(directions))
+
+
+@numba.njit(cache=True)
+def _uncovered(pos, alive, shore, offsets, radii, radius, comm_range, out):  # pragma: no cover - compiled
+    e, n, rays, points = pos.shape[0], pos.shape[1], offsets.shape[0], offsets.shape[1]
+    for b in range(e):
+        for i in range(n):
+            for r in range(rays):
+                free = 0
+                for p in range(points):
+                    if not radii[p] < shore[b, i, r]:
+                        continue  # past the ray's first shore crossing: not known to be water
+                    covered = False
+                    for j in range(n):
+                        if j == i or not alive[b, j]:
+                            continue
+                        rx, ry = pos[b, j, 0] - pos[b, i, 0], pos[b, j, 1] - pos[b, i, 1]
+                        if np.sqrt(rx * rx + ry * ry) > comm_range:
+                            continue  # not heard
+                        gx, gy = offsets[r, p, 0] - rx, offsets[r, p, 1] - ry
+                        if gx * gx + gy * gy <= radius * radius:
+                            covered = True
+                            break
+                    free += not covered
+                out[b, i, r] = free / points
+
+
+def uncovered_water(pos: np.ndarray, shore: np.ndarray, directions: np.ndarray, radii: tuple[float, ...],
+                    radius: float, comm_range: float, alive: np.ndarray | None = None) -> np.ndarray:
+    """How much of each ray's water no other buoy covers: the share of the points at ``radii`` m from the buoy in
+    each direction that lie before the ray's first shore crossing (water, read from ``shore``, the buoy's
+    ``shore_distances``) and farther than ``radius`` (the coverage range R) from every other buoy it hears (all
+    within ``comm_range``, not only the k nearest it lists). Points on the ring at R mark where the buoy's own
+    disc adds water to the fleet's union; points beyond it, where uncovered water lies. pos: [E, N, 2];
+    shore: [E, N, rays]; directions: [rays, 2] → [E, N, rays] in [0, 1]."""
+    r = np.asarray(radii, dtype=np.float64)
+    offsets = np.ascontiguousarray(r[None, :, None] * directions[:, None, :])  # [rays, P, 2], relative to the buoy
+    live = np.ones(pos.shape[:2], dtype=np.bool_) if alive is None else np.ascontiguousarray(alive, dtype=np.bool_)
+    out = np.empty(shore.shape)
+    _uncovered(np.ascontiguousarray(pos, dtype=np.float64), live, np.ascontiguousarray(shore, dtype=np.float64),
+               offsets, r, float(radius), float(comm_range), out)
+    return out
+
+
+def columns(k: int, rays: int, uncovered: bool = False) -> list[str]:
+    """Names of ``local_observation``'s columns, in order (``uncovered``: with ``uncovered_water``'s)."""
+    compass = [round(360 * r / rays) for r in range(rays)]
+    return (["vx", "vy"] + [f"neighbour{j}_{c}" for j in range(k) for c in ("dx", "dy")]
+            + [f"neighbour{j}_heard" for j in range(k)] + [f"shore_{d}deg" for d in compass]
+            + ([f"uncovered_{d}deg" for d in compass] if uncovered else []))
+
+
+def describe(config) -> list[dict]:
+    """Each sensor of ``local_observation`` as the exported policy's metadata lists it: its function, its columns,
+    its settings (``config``: a ``config.SensorsConfig``)."""
+    k, rays = config.neighbours, config.rays
+    names = columns(k, rays, bool(config.uncovered))
+    described = [
+        {"sensor": "own_velocity", "columns": names[:2], "shape": "[E, N, 2]", "units": "m/s",
+         "frame": "over the ground (GPS)" if config.velocity == "ground" else "through the water (log)"},
+        {"sensor": "neighbours", "columns": names[2:2 + 3 * k], "shape": f"[E, N, {k}, 2] and mask [E, N, {k}]",
+         "k": k, "comm_range_m": config.comm_range, "units": "m, relative to the buoy; mask 1 = heard"},
+        {"sensor": "shore_distances", "columns": names[2 + 3 * k:2 + 3 * k + rays], "shape": f"[E, N, {rays}]",
+         "rays": rays, "ray_range_m": config.ray_range, "units": "m, capped at ray_range_m",
+         "directions": "compass, east first, counter-clockwise"},
+    ]
+    if config.uncovered:
+        described.append({"sensor": "uncovered_water", "columns": names[2 + 3 * k + rays:], "shape": f"[E, N, {rays}]",
+                          "radii_m": list(config.uncovered), "comm_range_m": config.comm_range,
+                          "units": "share of the points along each ray that are water no other buoy heard covers",
+                          "directions": "those of shore_distances"})
+    return described
+
+
+def local_observation(pos: np.ndarray, vel: np.ndarray, segments: np.ndarray, directions: np.ndarray, k: int,
+                      comm_range: float, ray_range: float, alive: np.ndarray | None = None,
+                      uncovered: tuple[float, ...] = (), radius: float = 0.0) -> np.ndarray:
+    """Every sensor of every buoy, concatenated in the order of ``columns``: [E, N, 2 + 3k + rays] float32, and
+    ``rays`` more with ``uncovered`` (the radii of ``uncovered_water``'s points; ``radius``: the coverage range)."""
+    rel, mask = neighbours(pos, k, comm_range, alive)
+    e, n = pos.shape[:2]
+    shore = shore_distances(pos, segments, directions, ray_range)
+    parts = [own_velocity(vel), rel.reshape(e, n, 2 * k), mask, shore]
+    if uncovered:
+        parts.append(uncovered_water(pos, shore, directions, uncovered, radius, comm_range, alive))
+    return np.concatenate(parts, axis=-1).astype(np.float32)
+
+
+ON_SHORE = 1e-6  # m: a buoy the wall stopped rests ~1e-11 m inside the shoreline, not on it
+
+
+def shore_rays(columns: list[str]) -> list[int]:
+    """The observation's shore-ray columns (``sensors.columns``)."""
+    return [k for k, name in enumerate(columns) if name.startswith("shore_")]
+
+
+def on_shore(obs: np.ndarray, rays: list[int]) -> np.ndarray:
+    """Which buoys rest on the shore: a shore ray (``rays``, from ``shore_rays``) shorter than ``ON_SHORE`` (a
+    buoy the wall stopped). obs [E, N, d] → [E, N]."""
+    return obs[..., rays].min(axis=-1) <= ON_SHORE

@@ -1,0 +1,65 @@
+"""The best layout (``replicate.compare.best_layout``): the offline limit every method is read against."""
+
+import json
+
+import numpy as np
+import pytest
+
+from replicate.compare.best_layout import best_layout, covered_area
+
+from ..conftest import ROOT
+
+
+def test_the_square_reaches_its_ceiling(params, regions):
+    """Nine polygons fit in the 3 × 3 m square without overlap: the best layout covers N·A(Cov)/A(Reg)."""
+    xy, coverage = best_layout(regions["square"].polygon, 9, params.coverage.radius, params.coverage.edges)
+    assert coverage == pytest.approx(0.7797, abs=2e-4)
+    assert coverage == pytest.approx(covered_area(regions["square"].polygon, xy, 0.5, 30) / 9.0)
+
+
+def test_bedok_beats_every_committed_lloyd_layout(params, regions):
+    """On Bedok the best layout lies above Lloyd's, converged (500 steps) or at T, with any gains."""
+    xy, coverage = best_layout(regions["bedok"].polygon, 9, params.coverage.radius, params.coverage.edges)
+    baselines = json.loads((ROOT / "metrics" / "summary.json").read_text())["baselines"]
+    lloyd = max(v["coverage"] for k, v in baselines.items() if k.startswith("lloyd") and k.endswith("/bedok"))
+    assert coverage > lloyd and coverage > 0.76
+    assert xy.shape == (9, 2) and np.isfinite(xy).all()
+
+
+def test_scoring_within_reach_gives_the_whole_fleets_layout(params):
+    """Greedy placement and local search score only what lies within reach of a change; against a reference that
+    scores every candidate against the whole fleet and lake they pick the same points on an L-shaped lake with an
+    island."""
+    import shapely
+    from shapely.geometry import Polygon
+
+    from replicate.compare.best_layout import TIE, coverage_polygons, gains, greedy, local_search
+
+    r, e = params.coverage.radius, params.coverage.edges
+    lake = Polygon([(0, 0), (4, 0), (4, 1.5), (1.5, 1.5), (1.5, 4), (0, 4)], [[(0.5, 0.5), (0.9, 0.5), (0.9, 0.9)]])
+    gx, gy = np.meshgrid(np.arange(-0.5, 4.5, 0.1), np.arange(-0.5, 4.5, 0.1))
+    grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    grid = grid[shapely.intersects_xy(lake.buffer(r), grid[:, 0], grid[:, 1])]
+
+    xy, covered = [], None
+    for _ in range(8):
+        g = gains(lake, covered, grid, r, e)
+        xy.append(grid[int(np.argmax(g >= g.max() - TIE))])
+        cov = shapely.intersection(coverage_polygons(np.array(xy[-1:]), r, e)[0], lake)
+        covered = cov if covered is None else shapely.union(covered, cov)
+    placed = greedy(lake, grid, 8, r, e)
+    np.testing.assert_array_equal(placed, np.array(xy))
+
+    reference, step = placed.copy(), 0.1
+    compass = np.array([[np.cos(a), np.sin(a)] for a in np.arange(8) * np.pi / 4])
+    while step >= 1e-3:
+        improved = False
+        for i in range(len(reference)):
+            rest = shapely.union_all(coverage_polygons(np.delete(reference, i, axis=0), r, e))
+            moves = np.concatenate([reference[i:i + 1], reference[i] + step * compass])
+            g = gains(lake, rest, moves, r, e)
+            k = int(np.argmax(g))
+            if k > 0 and g[k] > g[0] + TIE:
+                reference[i], improved = moves[k], True
+        step = step if improved else step / 2
+    np.testing.assert_array_equal(local_search(lake, placed, 0.1, r, e, 1e-3), reference)

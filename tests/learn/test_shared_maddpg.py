@@ -1,0 +1,228 @@
+"""The fleet-size-agnostic MADDPG (``replicate.learn.shared_maddpg``): one actor and one critic for any N, any order,
+padding and lost buoys left out."""
+
+import numpy as np
+import pytest
+import torch
+
+from replicate.core.params import SharedLearnerConfig
+from replicate.learn.shared_maddpg import FleetBatch, PooledCritic, SharedActor, SharedMADDPG
+
+OD, AD = 22, 2
+
+
+def fleet(n: int, batch: int = 16, seed: int = 0, live=None) -> FleetBatch:
+    g = torch.Generator().manual_seed(seed)
+
+    def r(*shape):
+        return torch.randn(*shape, generator=g)
+
+    live = torch.ones(batch, n, dtype=torch.bool) if live is None else live
+    return FleetBatch(obs=r(batch, n, OD), act=torch.rand(batch, n, AD, generator=g) * 2 - 1, rew=r(batch, n),
+                      next_obs=r(batch, n, OD), pos=r(batch, n, 2) * 2, next_pos=r(batch, n, 2) * 2, live=live,
+                      next_live=live, disc=torch.full((batch,), 0.9))
+
+
+def pool(critic: PooledCritic, b: FleetBatch, pos=None) -> torch.Tensor:
+    """The pooled embedding of every slot of ``b`` (live or not) [B, N, embed], with positions ``pos``."""
+    pos = b.pos if pos is None else pos
+    every = torch.ones_like(b.live).nonzero(as_tuple=True)
+    return critic.pooled(b.obs, b.act, critic.neighbours(pos, b.live, every)).reshape(*b.live.shape, -1)
+
+
+def test_one_network_scores_any_fleet_size():
+    torch.manual_seed(0)
+    actor, critic = SharedActor(OD, AD, 64), PooledCritic(OD, AD, 64, 32)
+    for n in (1, 5, 9, 20, 50):
+        b = fleet(n, batch=4)
+        a, pre = actor(b.obs)
+        assert a.shape == pre.shape == (4, n, AD) and a.abs().max() <= 1
+        assert critic(b.obs, a, b.pos, b.live).shape == (4, n)
+
+
+def test_the_critic_does_not_care_about_order():
+    torch.manual_seed(1)
+    critic, b = PooledCritic(OD, AD, 64, 32), fleet(9)
+    perm = torch.randperm(9)
+    q = critic(b.obs, b.act, b.pos, b.live)
+    q_perm = critic(b.obs[:, perm], b.act[:, perm], b.pos[:, perm], b.live[:, perm])
+    torch.testing.assert_close(q_perm, q[:, perm], rtol=1e-5, atol=1e-5)
+
+
+def test_padding_and_lost_buoys_change_nothing_for_the_others():
+    """A fleet of 6 padded to 9, and the same 6 with 3 more buoys lost: the 6 get the same Q as alone."""
+    torch.manual_seed(2)
+    critic = PooledCritic(OD, AD, 64, 32)
+    b = fleet(9)
+    live = torch.zeros(16, 9, dtype=torch.bool)
+    live[:, :6] = True
+    q_padded = critic(b.obs, b.act, b.pos, live)[:, :6]
+    q_alone = critic(b.obs[:, :6], b.act[:, :6], b.pos[:, :6], live[:, :6])
+    torch.testing.assert_close(q_padded, q_alone, rtol=1e-5, atol=1e-6)
+
+
+def test_updates_fit_a_fixed_batch_and_leave_padding_out():
+    """On one fixed batch, 200 updates bring the critic's TD loss down; the rewards of padded buoys, however
+    large, do not enter it."""
+    agent = SharedMADDPG(OD, AD, SharedLearnerConfig(critic_lr=3e-3), seed=0)
+    live = torch.ones(32, 12, dtype=torch.bool)
+    live[:, 9:] = False
+    b = fleet(12, batch=32, live=live)
+    b.rew[:, 9:] = 1e6
+    first = agent.update(b)["critic_loss"]
+    for _ in range(200):
+        stats = agent.update(b)
+    assert np.isfinite(stats["critic_loss"]) and stats["critic_loss"] < 0.5 * first
+    assert stats["q_abs"] < 100, "the padded buoys' rewards were left out"
+
+
+def test_the_actor_step_leaves_the_critic_alone():
+    agent = SharedMADDPG(OD, AD, SharedLearnerConfig(), seed=3)
+    b = fleet(9)
+    agent.update(b)
+    before = [p.detach().clone() for p in agent.critic.parameters()]
+    grads = [p.grad.clone() for p in agent.critic.parameters()]
+    mu, pre = agent.actor(b.obs)
+    (-agent.critic(b.obs, mu, b.pos, b.live).mean()).backward(inputs=list(agent.actor.parameters()))
+    assert all(torch.equal(g, p.grad) for g, p in zip(grads, agent.critic.parameters()))
+    assert all(torch.equal(x, p) for x, p in zip(before, agent.critic.parameters()))
+
+
+def test_same_seed_same_networks_and_torch_stream_untouched():
+    torch.manual_seed(123)
+    expected = torch.rand(3)
+    torch.manual_seed(123)
+    a, b = SharedMADDPG(OD, AD, SharedLearnerConfig(), seed=7), SharedMADDPG(OD, AD, SharedLearnerConfig(), seed=7)
+    assert torch.equal(torch.rand(3), expected), "building the networks drew nothing from torch's global stream"
+    for p, q in zip(a.actor.parameters(), b.actor.parameters()):
+        assert torch.equal(p, q)
+
+
+def test_a_pool_range_leaves_far_buoys_out_of_the_critic():
+    """With ``pool_range`` the critic pools only the buoys within it: moving a buoy that is out of range of all
+    others further away changes nobody else's Q; the whole-fleet critic does see it."""
+    torch.manual_seed(2)
+    b = fleet(5, batch=3)
+    b.pos[:, :4] = torch.rand(3, 4, 2)  # four buoys within 1.5 m of each other ...
+    b.pos[:, 4] = torch.tensor([10.0, 10.0])  # ... and one far away
+    moved = b.pos.clone()
+    moved[:, 4] = torch.tensor([20.0, -5.0])
+    near, whole = PooledCritic(OD, AD, 64, 32, pool_range=2.0), PooledCritic(OD, AD, 64, 32)
+    whole.load_state_dict(near.state_dict())
+    for critic, same in ((near, True), (whole, False)):
+        q, q_moved = critic(b.obs, b.act, b.pos, b.live), critic(b.obs, b.act, moved, b.live)
+        assert torch.equal(q[:, :4], q_moved[:, :4]) == same
+
+
+def test_pooling_the_k_nearest_is_pooling_all_when_k_covers_the_fleet_and_ignores_the_rest_otherwise():
+    torch.manual_seed(3)
+    b = fleet(6, batch=4, live=torch.tensor([[True] * 6] * 3 + [[True, True, True, False, False, False]]))
+    whole, k5, k2 = PooledCritic(OD, AD, 64, 32), PooledCritic(OD, AD, 64, 32, pool_neighbours=5), \
+        PooledCritic(OD, AD, 64, 32, pool_neighbours=2)
+    k5.load_state_dict(whole.state_dict())
+    k2.load_state_dict(whole.state_dict())
+    assert torch.equal(pool(whole, b), pool(k5, b))
+    # with K = 2, moving each buoy's third-nearest and further ones away changes nothing for it
+    d = (b.pos[:, :, None] - b.pos[:, None]).square().sum(-1)
+    d = d.masked_fill(torch.eye(6, dtype=torch.bool) | ~b.live[:, None, :], float("inf"))
+    i, near = 0, d[:, 0].topk(2, largest=False).indices  # buoy 0's two nearest live others, per sample
+    moved = b.pos.clone()
+    for s in range(4):
+        for j in range(1, 6):
+            if j not in near[s]:
+                moved[s, j] += 100.0
+    before, after = pool(k2, b), pool(k2, b, moved)
+    assert torch.allclose(before[:, i], after[:, i], atol=1e-6)
+    assert not torch.allclose(pool(whole, b)[:, i], pool(whole, b, moved)[:, i])
+
+
+def test_pooling_the_k_nearest_averages_the_embeddings_of_exactly_those_buoys():
+    """K = 3 of 6 (the gather path), with a sample whose buoy has fewer live others than K: each buoy's pooled
+    vector is the mean of φ over its K nearest live others, computed here one buoy at a time."""
+    torch.manual_seed(4)
+    live = torch.ones(3, 6, dtype=torch.bool)
+    live[2, 2:] = False  # two live buoys: each has one live other, fewer than K
+    b = fleet(6, batch=3, live=live)
+    critic = PooledCritic(OD, AD, 64, 32, pool_neighbours=3)
+    pooled = pool(critic, b)
+    for s in range(3):
+        for i in range(6):
+            others = [j for j in range(6) if j != i and b.live[s, j]]
+            others.sort(key=lambda j: float((b.pos[s, j] - b.pos[s, i]).square().sum()))
+            near = others[:3]
+            x = torch.stack([torch.cat([b.obs[s, j], b.act[s, j], b.pos[s, j] - b.pos[s, i]]) for j in near])
+            assert torch.allclose(pooled[s, i], critic.phi(x).mean(dim=0), atol=1e-5)
+
+
+class PaddedReference(SharedMADDPG):
+    """The update as it ran on padded [B, N] tensors before the rows (GENERAL_VERSION 1): every slot through the
+    networks, the padding masked out of the pool and the losses. The reference the rows update is checked against."""
+
+    def pooled(self, critic, obs, act, pos, live):  # [B, N, embed]
+        n = obs.shape[1]
+        rel = pos[:, None, :, :] - pos[:, :, None, :]  # [B, N (i), N (j), 2]
+        other = torch.cat([obs, act], dim=-1)[:, None].expand(-1, n, -1, -1)
+        others = live[:, None, :] & ~torch.eye(n, dtype=torch.bool)
+        if critic.pool_range > 0:
+            others = others & (rel.square().sum(-1) <= critic.pool_range**2)
+        if 0 < critic.pool_neighbours < n - 1:
+            far = rel.square().sum(-1).masked_fill(~others, torch.inf)
+            nearest, idx = far.topk(critic.pool_neighbours, dim=2, largest=False)
+            others = torch.isfinite(nearest)
+            rel = rel.gather(2, idx[..., None].expand(-1, -1, -1, 2))
+            other = other.gather(2, idx[..., None].expand(-1, -1, -1, other.shape[-1]))
+        e = critic.phi(torch.cat([other, rel], dim=-1))
+        w = others.to(e.dtype)
+        return (e * w[..., None]).sum(dim=2) / w.sum(dim=2).clamp(min=1.0)[..., None]
+
+    def q(self, critic, obs, act, pos, live, pooled=None):  # [B, N]
+        pooled = self.pooled(critic, obs, act, pos, live) if pooled is None else pooled
+        return critic.q(torch.cat([obs, act, pooled], dim=-1)).squeeze(-1)
+
+    def update(self, b: FleetBatch) -> dict[str, float]:
+        cfg = self.cfg
+        live, n_live = b.live.float(), b.live.float().sum().clamp(min=1.0)
+        with torch.no_grad():
+            next_act, _ = self.actor_target(b.next_obs)
+            q_next = self.q(self.critic_target, b.next_obs, next_act, b.next_pos, b.next_live) * b.next_live
+            y = b.rew + b.disc[:, None] * q_next
+        q = self.q(self.critic, b.obs, b.act, b.pos, b.live)
+        critic_loss = (((q - y) ** 2) * live).sum() / n_live
+        self.critic_opt.zero_grad()
+        critic_loss.backward()
+        torch.nn.utils.clip_grad_norm_(self.critic.parameters(), cfg.grad_clip)
+        self.critic_opt.step()
+        with torch.no_grad():
+            pooled = self.pooled(self.critic, b.obs, b.act, b.pos, b.live)
+        mu, pre = self.actor(b.obs)
+        q_pi = self.q(self.critic, b.obs, mu, b.pos, b.live, pooled)
+        actor_loss = -(q_pi * live).sum() / n_live + cfg.actor_reg * ((pre**2).mean(-1) * live).sum() / n_live
+        self.actor_opt.zero_grad()
+        actor_loss.backward(inputs=list(self.actor.parameters()))
+        torch.nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.grad_clip)
+        self.actor_opt.step()
+        with torch.no_grad():
+            for net, target in ((self.critic, self.critic_target), (self.actor, self.actor_target)):
+                for p, tp in zip(net.parameters(), target.parameters()):
+                    tp.lerp_(p, cfg.tau)
+        return {"critic_loss": critic_loss.item()}
+
+
+@pytest.mark.parametrize("pool", [{"pool_neighbours": 0}, {"pool_neighbours": 3}, {"pool_neighbours": 8},
+                                  {"pool_neighbours": 3, "pool_range": 1.5}, {"pool_neighbours": 0, "pool_range": 1.5}])
+def test_the_update_on_the_buoys_in_service_is_the_padded_update(pool):
+    """Fleets of 1 to 9 padded to 9 (single buoys with no one to pool), some buoys lost before the bootstrap step:
+    three updates on the rows leave the weights the padded reference leaves, to float rounding, for the K-nearest
+    path, the all-pairs path (K = 0 and K ≥ N − 1) and a pool range."""
+    g = torch.Generator().manual_seed(5)
+    live = torch.arange(9)[None] < torch.randint(1, 10, (48,), generator=g)[:, None]
+    b = fleet(9, batch=48, seed=5, live=live)
+    b.next_live = live & (torch.rand(48, 9, generator=g) > 0.2)
+    b.rew[~live] = 100.0  # what padding holds must not matter
+    cfg = SharedLearnerConfig(**pool)
+    rows, padded = SharedMADDPG(OD, AD, cfg, seed=1), PaddedReference(OD, AD, cfg, seed=1)
+    for _ in range(3):
+        assert abs(rows.update(b)["critic_loss"] - padded.update(b)["critic_loss"]) < 1e-5
+    for net in ("actor", "critic", "actor_target", "critic_target"):
+        for p, q in zip(getattr(rows, net).parameters(), getattr(padded, net).parameters()):
+            torch.testing.assert_close(p, q, rtol=1e-4, atol=1e-5)

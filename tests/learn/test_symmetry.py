@@ -1,0 +1,115 @@
+"""The compass symmetries (``replicate.learn.symmetry``): turning or mirroring a lake with its buoys permutes their
+observations as the group says, and the symmetric actor turns its pushes with them."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+from shapely import affinity
+from shapely.geometry import box
+
+from replicate.core.params import ConfigError, load_params
+from replicate.learn.shared_maddpg import SharedActor
+from replicate.learn.symmetry import _signed_permutation, d4
+from replicate.world import sensors
+
+from ..conftest import ROOT
+from ..world.test_sensors import points_inside
+
+COLUMNS = sensors.columns(4, 8, uncovered=True)
+
+
+def turned(g: np.ndarray, obs: np.ndarray) -> np.ndarray:
+    """g·o for observations [..., D] with ``COLUMNS``."""
+    index, sign = _signed_permutation(COLUMNS, g)
+    return obs[..., index] * sign
+
+
+def test_d4_is_a_group_of_eight_orthogonal_maps():
+    group = d4()
+    assert len({g.tobytes() for g in group}) == 8
+    for g in group:
+        np.testing.assert_array_equal(g @ g.T, np.eye(2))
+        assert any((g @ h == np.eye(2)).all() for h in group), "its inverse is in the group"
+
+
+@pytest.mark.parametrize("lake", ["bedok", "island"])
+def test_a_turned_lake_turns_the_observation(regions, lake):
+    """Every sensor (velocity, neighbours and their masks, shore rays, uncovered water) of buoys in a lake turned
+    or mirrored by g reads g·o, where o is what they read before: the group acts on the columns as claimed."""
+    water = regions["bedok"].polygon if lake == "bedok" else box(0, 0, 3, 3).difference(box(1.2, 1.2, 1.8, 1.8))
+    rng = np.random.default_rng(3)
+    pos = points_inside(water, 3 * 10, rng).reshape(3, 10, 2)
+    vel = rng.normal(size=(3, 10, 2))
+    alive = rng.uniform(size=(3, 10)) > 0.2
+    directions = sensors.ray_directions(8)
+
+    def observe(poly, p, v):
+        return sensors.local_observation(p, v, sensors.shore_segments(poly), directions, 4, 1.5, 2.0, alive,
+                                         (0.25, 0.5, 0.75), 0.5)
+
+    before = observe(water, pos, vel)
+    for g in d4():
+        after = observe(affinity.affine_transform(water, [*g[0], *g[1], 0, 0]), pos @ g.T, vel @ g.T)
+        np.testing.assert_allclose(after, turned(g, before), atol=1e-5)
+    assert not np.allclose(turned(d4()[1], before), before), "a quarter turn changes what the buoys read"
+
+
+def test_the_symmetric_actor_turns_its_pushes_with_the_world():
+    """μ̄(g·o) = g μ̄(o) for every g of D4 (after the tanh too); an ordinary actor does not."""
+    obs = torch.randn(50, len(COLUMNS), generator=torch.Generator().manual_seed(0))
+    for symmetry, equivariant in (("d4", True), ("none", False)):
+        torch.manual_seed(1)
+        actor = SharedActor(len(COLUMNS), 2, 32, symmetry, COLUMNS)
+        with torch.no_grad():
+            act = actor(obs)[0]
+            errors = [(actor(torch.as_tensor(turned(g, obs.numpy())).float())[0] - act @ torch.as_tensor(g.T).float())
+                      .abs().max().item() for g in d4()]
+        assert (max(errors) < 1e-5) == equivariant, (symmetry, errors)
+
+
+def test_a_symmetric_actor_exports_and_fine_tunes_from_its_file(params, tmp_path):
+    """A d4 actor's file exports (TorchScript) to the same pushes, names its symmetry, and its weights load back
+    into a d4 actor, as `replicate cover --finetune` does."""
+    from replicate.core import artifacts
+    from replicate.core.params import to_dict
+    from replicate.learn.policy import load_policy
+    from replicate.toolkit.export import export_general
+    from replicate.world.env import observation_columns
+
+    columns = observation_columns("local", params.general.sensors)  # the sensors the file names, their columns
+    actor = SharedActor(len(columns), 2, 16, "d4", columns)
+    artifacts.torch_save(tmp_path / "actor.pt", {
+        "format": artifacts.CHECKPOINT_FORMAT, "actor": actor.state_dict(), "observation": "local",
+        "sensors": to_dict(params.general.sensors), "columns": columns, "hidden": 16,
+        "symmetry": "d4", "selected_episode": 0, "seed": 0})
+    meta = export_general(tmp_path / "actor.pt", tmp_path / "policy.pt")
+    module, saved = load_policy(tmp_path / "policy.pt")
+    assert meta["symmetry"] == saved["symmetry"] == "d4"
+    obs = torch.randn(7, len(columns))
+    with torch.no_grad():
+        torch.testing.assert_close(module(obs), actor(obs)[0])
+    again = SharedActor(len(columns), 2, 16, "d4", columns)
+    again.load_state_dict(dict(module.state_dict()))  # the fine-tuning trainer's starting weights
+
+
+def test_a_symmetric_run_has_its_own_identity(params):
+    """A run of the plain actor keeps the identity it had before the option existed; a D4 run names it."""
+    from replicate.learn.general_train import general_identity
+
+    def with_symmetry(value):
+        return dataclasses.replace(params, general=dataclasses.replace(
+            params.general, learner=dataclasses.replace(params.general.learner, symmetry=value)))
+
+    assert "symmetry" not in general_identity(with_symmetry("none"), 10)["general"]["learner"]
+    assert general_identity(with_symmetry("d4"), 10)["general"]["learner"]["symmetry"] == "d4"
+
+
+@pytest.mark.parametrize("overrides, message", [
+    ({"general.learner.symmetry": "c8"}, r"general.learner.symmetry: 'c8' is not one of \['none', 'd4'\]"),
+    ({"general.learner.symmetry": "d4", "general.sensors.rays": 6}, "multiple of 4"),
+])
+def test_a_symmetry_the_sensors_cannot_carry_is_refused(overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        load_params(ROOT / "params.yaml", overrides)

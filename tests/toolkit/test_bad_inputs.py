@@ -1,0 +1,131 @@
+"""Bad inputs get one clear line naming the input and the fix, exit 2, and leave nothing behind."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import geopandas as gpd
+import pytest
+from shapely.geometry import Polygon
+
+from replicate.toolkit.cli import main as cli_main
+
+TRAIN = ["train", "--config", "tuned", "--method", "cr", "--region", "square", "--episodes", "50", "--no-progress"]
+
+
+def run(capsys, *argv) -> tuple[int, str]:
+    code = cli_main(list(argv))
+    return code, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("configs.tuned.maddpg.batch_size", 0, "batch_size must be at least 1"),
+    ("configs.tuned.maddpg.hidden", 0, "hidden must be at least 1"),
+    ("configs.tuned.maddpg.buffer_size", 0, "buffer_size must be at least 1"),
+    ("configs.tuned.maddpg.update_every", 0, "update_every must be above 0"),
+    ("configs.tuned.maddpg.gamma", 2, r"gamma must be in (0, 1]"),
+    ("configs.tuned.maddpg.tau", 2, r"tau must be in (0, 1]"),
+    ("configs.tuned.maddpg.actor_lr", -1, "actor_lr must be above 0"),
+    ("configs.tuned.maddpg.learning_starts", -5, "learning_starts must be at least 0"),
+    ("configs.tuned.maddpg.noise_start", -1, "noise_start must be at least 0"),
+    ("configs.tuned.select_every", -1, "select_every must be at least 0"),
+    ("configs.tuned.select_episodes", 0, "select_episodes must be at least 1"),
+    ("configs.tuned.reward_scale", 0, "reward_scale must be above 0"),
+    ("coverage.raster_spacing", 5, r"raster_spacing must be in (0, 0.25]"),
+    ("evaluate.episodes", 0, "evaluate.episodes must be at least 1"),
+    ("world.n_agents", "abc", "--set world.n_agents=abc: world.n_agents: expected an integer"),
+])
+def test_out_of_range_values_are_refused_before_anything_is_written(capsys, tmp_path, key, value, message):
+    code, err = run(capsys, *TRAIN, "--set", f"{key}={value}", "--out", str(tmp_path / "run"))
+    assert code == 2 and message in err and "Traceback" not in err
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_folder_that_is_not_a_run_is_named(capsys, tmp_path):
+    (tmp_path / "empty").mkdir()
+    code, err = run(capsys, "evaluate", str(tmp_path / "empty"))
+    assert code == 2 and "not a run folder (no run.json); give a folder that `replicate train` wrote" in err
+    (tmp_path / "damaged").mkdir()
+    (tmp_path / "damaged" / "run.json").write_text("{}")
+    code, err = run(capsys, "export", str(tmp_path / "damaged"))
+    assert code == 2 and "not a run's record (no region)" in err
+    (tmp_path / "damaged" / "run.json").write_text("not json")
+    code, err = run(capsys, "animate", str(tmp_path / "damaged"))
+    assert code == 2 and "not a readable run record" in err
+
+
+@pytest.mark.parametrize("verb", ["evaluate", "export", "animate"])
+def test_out_files_are_checked_before_the_work(capsys, tmp_path, verb):
+    """An --out that is a folder, or a file already there (without --force), is refused at once."""
+
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "run.json").write_text(json.dumps({"region": "square"}))
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "done.txt").write_text("a result")
+    code, err = run(capsys, verb, str(run_dir), "--out", str(tmp_path / "folder"))
+    assert code == 2 and "is a folder; give the path of a file" in err
+    code, err = run(capsys, verb, str(run_dir), "--out", str(tmp_path / "done.txt"))
+    assert code == 2 and "exists; pass --force to replace it" in err
+    assert (tmp_path / "done.txt").read_text() == "a result"
+
+
+def test_a_missing_observation_file_is_named(capsys, tmp_path):
+    code, err = run(capsys, "act", "--policy", str(tmp_path / "p.pt"), "--obs-file", str(tmp_path / "nosuch.json"))
+    assert code == 2 and "--obs-file" in err and "no such file" in err
+
+
+def test_outline_files_with_nan_vertices_or_an_unknown_crs_are_named(capsys, tmp_path):
+    nan = {"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {}, "geometry": {
+        "type": "Polygon", "coordinates": [[[103.9, 1.33], [103.91, 1.33], [float("nan"), 1.34], [103.9, 1.33]]]}}]}
+    (tmp_path / "nan.geojson").write_text(json.dumps(nan))
+    code, err = run(capsys, *TRAIN[:-5], "--region", str(tmp_path / "nan.geojson"), "--out", str(tmp_path / "a"))
+    assert code == 2 and "coordinates that are not numbers" in err and not (tmp_path / "a").exists()
+    square = Polygon([(380000, 150000), (380400, 150000), (380400, 150300), (380000, 150300)])
+    doc = json.loads(gpd.GeoSeries([square]).to_json())
+    doc["crs"] = {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::999999"}}
+    (tmp_path / "badcrs.geojson").write_text(json.dumps(doc))
+    code, err = run(capsys, *TRAIN[:-5], "--region", str(tmp_path / "badcrs.geojson"), "--out", str(tmp_path / "b"))
+    assert code == 2 and "declares the CRS 'urn:ogc:def:crs:EPSG::999999'" in err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["evaluate", "--policy", "nowhere.pt", "--region", "square"], "--policy nowhere.pt: no such file"),
+    (["evaluate", "--n-agents", "20", "--baseline", "lloyd", "--region", "square"],
+     "--n-agents: options of a general policy; give --policy FILE"),
+    (["evaluate", "--policy", "actor.pt", "--region", "square"], "export it first"),
+    (["evaluate", "--policy", "actor.pt"], "--policy needs --region"),
+    (["train-general", "--out", "g", "--episodes", "3"], "--episodes must be at least general.n_envs"),
+    (["train-general", "--out", "g", "--set", "general.regions=[pond]"], "general.regions: unknown region(s)"),
+    (["export", "general", "--baseline-gains", "nowhere.json"],
+     "--baseline-gains nowhere.json: no such file; `replicate tune general-baselines` writes it"),
+    (["export", "general", "--baseline-gains", "actor.pt"], "--baseline-gains actor.pt: not the general baselines'"),
+    (["export", "general", "--baseline-gains", "partial.json"],
+     "--baseline-gains partial.json: not the general baselines' gains (TypeError"),
+    (["tune", "general-baselines", "--set", "tuning.general_baselines.starts=0"],
+     "tuning.general_baselines.starts must be at least 1"),
+    (["tune", "general-baselines", "--set", "evaluate.geodesic.spacing=0"], "evaluate.geodesic.spacing must be in"),
+    (["cover", "--region", "lake.geojson", "--episodes", "100"], "--episodes goes with --method cr"),
+    (["cover", "--region", "lake.geojson", "--policy", "nowhere.pt"], "--policy nowhere.pt: no such file"),
+    (["cover", "--region", "lake.geojson", "--finetune", "-5"], "--finetune must be 0 (zero-shot)"),
+    (["cover", "--region", "lake.geojson", "--method", "cr", "--finetune", "64"],
+     "--policy and --finetune go with --method general"),
+    (["cover", "--region", "lake.geojson", "--policy", "actor.pt"], "export it first"),
+    (["cover", "--region", "lake.geojson", "--finetune", "5"], "--finetune must be 0 (zero-shot) or at least"),
+    (["cover", "--region", "lake.geojson", "--config", "paper"], "--config goes with --method cr"),
+    (["compare", "--candidate", "actor.pt", "--out", "c.json"],  # against the standing baseline beside params.yaml
+     "--candidate: give the policies of at least 8 training seeds"),
+])
+def test_general_policy_inputs_are_refused_by_name(capsys, tmp_path, monkeypatch, argv, message):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "actor.pt").write_bytes(b"x")
+    (tmp_path / "partial.json").write_text('{"naive_tuned": {"gains": {"attraction": 1, "avoid_range": 1, '
+                                           '"avoidance": 1, "damping": 0}}, "lloyd_tuned": {"gains": {"gain": 2}}}')
+    (tmp_path / "general").mkdir()
+    (tmp_path / "general" / "actor.pt").write_bytes(b"x")  # a general run's folder, as export tells them apart
+    params = str(Path(__file__).resolve().parents[2] / "params.yaml")
+    code, err = run(capsys, "--params", params, *argv)
+    assert code == 2 and message in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["actor.pt", "general", "partial.json"], "nothing written"
+    assert sorted(p.name for p in (tmp_path / "general").iterdir()) == ["actor.pt"]

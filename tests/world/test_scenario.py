@@ -1,0 +1,64 @@
+"""The one factory of environments: what it owns (pay, c1/c2) and that nothing else in the package builds one."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+
+import numpy as np
+import pytest
+
+from replicate.core.params import run_config
+from replicate.world.env import CoverageEnv, Pay
+from replicate.world.scenario import cr_weights, general_env, run_env
+from replicate.world.sensors import on_shore
+
+from ..conftest import ROOT
+
+
+def test_only_the_scenario_builds_an_environment():
+    """A config becomes an environment in ``world/scenario.py`` only (the fingerprint's fixed workload, which must
+    not read the parameters, aside): changing the reward's terms touches one module."""
+    builders = set()
+    for path in (ROOT / "src" / "replicate").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "CoverageEnv":
+                builders.add(str(path.relative_to(ROOT / "src" / "replicate")))
+    assert builders == {"world/scenario.py", "learn/fingerprint.py"}
+
+
+def test_the_pay_is_the_reward_scaled_less_the_shore_penalty(params, regions):
+    """``StepResult.pay`` = reward × scale − penalty × (on the shore and in service), per buoy; without a pay it is
+    the reward itself."""
+    world = dataclasses.replace(params.world, n_agents=4)
+    kw = dict(n_envs=2, reward="cr", cr=params.cr_reward, observation="local", sensors_config=params.general.sensors,
+              wall=True, seed=0)
+    plain, paid = CoverageEnv(regions["square"], world, params.coverage, **kw), \
+        CoverageEnv(regions["square"], world, params.coverage, pay=Pay(scale=0.5, shore_penalty=3.0), **kw)
+    push = np.zeros((2, 4, 2))
+    push[:, 0, 0] = -1.0  # buoy 0 drives west into the shore
+    for env in (plain, paid):
+        env.reset(seed=0, start="random")
+        env.pos[:] = [[-0.4, 0.0], [0.4, 0.0], [0.0, -0.4], [0.0, 0.4]]
+        env.vel[:] = 0.0
+    for _ in range(30):
+        a, b = plain.step(push), paid.step(push)
+    np.testing.assert_array_equal(a.pay, a.reward)
+    shore = on_shore(b.obs, paid.shore_rays)
+    assert shore[:, 0].all() and not shore[:, 1:].any()
+    np.testing.assert_array_equal(b.pay, b.reward * 0.5 - 3.0 * shore)
+    with pytest.raises(ValueError, match="shore rays"):
+        CoverageEnv(regions["square"], world, params.coverage, pay=Pay(shore_penalty=1.0))
+
+
+def test_the_scenario_sets_the_union_weight_and_pay_of_each_config(params, regions):
+    rc = run_config(params, "tuned", "cr", "square")
+    env = run_env(regions["square"], rc, 1, 0)
+    assert env.pay.scale == rc.algo.reward_scale
+    assert env.cr.c2 == (params.cr_reward.c2 if rc.algo.union_weight is None else rc.algo.union_weight)
+    gc = params.general
+    general = general_env(params, gc, regions["square"], 5, 1, 0)
+    assert (general.cr.c1, general.cr.c2) == (gc.cover_weight, gc.union_weight)
+    assert general.pay == Pay(gc.reward_scale, gc.shore_penalty) and general.wall
+    assert general_env(params, gc, regions["square"], 5, 1, 0, reward=False).reward_kind is None
+    assert cr_weights(params.cr_reward) == params.cr_reward
