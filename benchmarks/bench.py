@@ -49,9 +49,11 @@ import torch
 from torch import nn
 
 from replicate.core.params import load_params, run_config
-from replicate.learn.maddpg import MADDPG, ReplayBuffer, clip_grad_per_agent, soft_update
-from replicate.learn.shared_maddpg import FleetBatch, SharedMADDPG, live_rows
-from replicate.learn.train import Trainer, hold_freed_memory
+from replicate.learn.maddpg import MADDPG, clip_grad_per_agent, soft_update
+from replicate.learn.process import hold_freed_memory
+from replicate.learn.replay import FleetBatch, ReplayBuffer
+from replicate.learn.shared_maddpg import SharedMADDPG, live_rows
+from replicate.learn.train import Trainer
 from replicate.learn.training_worlds import baseline_worlds
 from replicate.pipeline.matrix import cell_seeds, matrix_cells
 from replicate.world.env import CoverageEnv, observation_columns

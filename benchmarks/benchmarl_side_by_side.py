@@ -150,7 +150,8 @@ def project_agent_and_batch():
     import numpy as np
 
     from replicate.core.params import load_params
-    from replicate.learn.maddpg import MADDPG, ReplayBuffer
+    from replicate.learn.maddpg import MADDPG
+    from replicate.learn.replay import ReplayBuffer
 
     cfg = load_params("params.yaml").configs["paper"].maddpg
     rng = np.random.default_rng(0)
@@ -172,7 +173,7 @@ def measure(side: str) -> dict:
     """One side's figures, in this process (``--side``)."""
     import torch
 
-    from replicate.learn.train import training_process
+    from replicate.learn.process import training_process
 
     training_process()
     torch.set_num_threads(1)

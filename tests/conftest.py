@@ -11,7 +11,7 @@ os.environ.setdefault("DVC_NO_ANALYTICS", "1")
 
 def pytest_configure(config):
     """The tests train in this process: the settings of a training process (one thread, as the references)."""
-    from replicate.learn.train import training_process
+    from replicate.learn.process import training_process
 
     training_process()
 

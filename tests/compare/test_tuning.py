@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from replicate.compare import tuning
-from replicate.core.params import ConfigError, Dimension, Search, load_params, run_config
+from replicate.core.params import load_params, run_config
+from replicate.core.schema import ConfigError
+from replicate.core.studies import Dimension, Search
 from replicate.learn import fingerprint
 
 from ..conftest import ROOT

@@ -20,7 +20,7 @@ from replicate.compare.yardstick import (
     verdict,
 )
 from replicate.core import artifacts
-from replicate.core.params import ConfigError, to_dict
+from replicate.core.schema import ConfigError, to_dict
 from replicate.learn.shared_maddpg import SharedActor
 from replicate.toolkit.export import export_general
 from replicate.world.env import observation_columns

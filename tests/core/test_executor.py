@@ -10,7 +10,8 @@ import yaml
 
 from replicate.core import executor
 from replicate.core.artifacts import read_curve
-from replicate.core.params import ConfigError, load_params
+from replicate.core.params import load_params
+from replicate.core.schema import ConfigError
 from replicate.learn.train import CURVE, load_actors
 from replicate.pipeline.matrix import train_matrix
 

@@ -7,17 +7,9 @@ import dataclasses
 import pytest
 import yaml
 
-from replicate.core.params import (
-    STAGE_SECTIONS,
-    AlgoConfig,
-    ConfigError,
-    MADDPGConfig,
-    Params,
-    load_params,
-    method_config,
-    run_config,
-    to_dict,
-)
+from replicate.core.params import STAGE_SECTIONS, Params, load_params, method_config, run_config
+from replicate.core.schema import ConfigError, to_dict
+from replicate.core.sections import AlgoConfig, MADDPGConfig
 
 from ..conftest import ROOT
 

@@ -10,7 +10,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from replicate.learn.maddpg import MADDPG, Batch
+from replicate.learn.maddpg import MADDPG
+from replicate.learn.replay import Batch
 
 
 def _sequential(net, i: int) -> nn.Sequential:

@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from replicate.learn import fingerprint
-from replicate.learn.general_train import FleetNStep, FleetReplay, GeneralTrainer
+from replicate.learn.general_train import GeneralTrainer
+from replicate.learn.replay import FleetNStep, FleetReplay
 from replicate.learn.shared_maddpg import SharedActor
 from replicate.world.sensors import ON_SHORE, on_shore, shore_rays
 
@@ -248,7 +249,8 @@ def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp
     import yaml
 
     from replicate.compare.yardstick import standing_baseline
-    from replicate.core.params import ConfigError, load_params
+    from replicate.core.params import load_params
+    from replicate.core.schema import ConfigError
     from replicate.learn.policy import load_policy
     from replicate.pipeline.general import train_design
 
@@ -319,7 +321,7 @@ def test_the_evaluation_suite_scores_every_cell(two_runs, tmp_path):
     import yaml
 
     from replicate.compare.suite import suite_cells
-    from replicate.core.params import EVENTS
+    from replicate.core.sections import EVENTS
     from replicate.pipeline.general import evaluate_general
     from replicate.toolkit.export import export_general
 

@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from replicate.learn import run_stack
-from replicate.learn.maddpg import MADDPG, Batch, BatchedMLP, NStepWriter, ReplayBuffer, adam_step, soft_update
+from replicate.learn.maddpg import MADDPG, BatchedMLP, adam_step, soft_update
+from replicate.learn.replay import Batch, NStepWriter, ReplayBuffer
 
 from .loop_maddpg import LoopMADDPG
 
@@ -94,10 +95,12 @@ def test_batched_update_equals_per_agent_loop(params, mode):
 def test_update_gradients_equal_the_per_agent_loop(params, mode):
     """The gradients of both losses inside ``update`` (learning rates 0 and no clipping, so they are left in
     ``.grad`` unchanged and the actor sees the same critic), against the autograd loss of each agent."""
-    cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=64, actor_lr=0.0, critic_lr=0.0,
-                              grad_clip=1e9)
+    cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=64, grad_clip=1e9)
     batched = MADDPG(4, 4, 2, cfg, mode, seed=5)
+    batched.scale_learning_rates(0.0)
     loop = LoopMADDPG(batched)
+    for opt in (*loop.actor_opts, *loop.critic_opts):
+        opt.param_groups[0]["lr"] = 0.0
     rng = np.random.default_rng(1)
     batch = filled_buffer(4, 4, rng).sample(rng, cfg.batch_size)
     batched.update(batch)

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 import torch
 
-from replicate.core.params import SharedLearnerConfig
-from replicate.learn.shared_maddpg import FleetBatch, PooledCritic, SharedActor, SharedMADDPG
+from replicate.core.sections import SharedLearnerConfig
+from replicate.learn.replay import FleetBatch
+from replicate.learn.shared_maddpg import PooledCritic, SharedActor, SharedMADDPG
 
 OD, AD = 22, 2
 

@@ -9,7 +9,8 @@ import torch
 from shapely import affinity
 from shapely.geometry import box
 
-from replicate.core.params import ConfigError, load_params
+from replicate.core.params import load_params
+from replicate.core.schema import ConfigError
 from replicate.learn.shared_maddpg import SharedActor
 from replicate.learn.symmetry import _signed_permutation, d4
 from replicate.world import sensors
@@ -73,7 +74,7 @@ def test_a_symmetric_actor_exports_and_fine_tunes_from_its_file(params, tmp_path
     """A d4 actor's file exports (TorchScript) to the same pushes, names its symmetry, and its weights load back
     into a d4 actor, as `replicate cover --finetune` does."""
     from replicate.core import artifacts
-    from replicate.core.params import to_dict
+    from replicate.core.schema import to_dict
     from replicate.learn.policy import load_policy
     from replicate.toolkit.export import export_general
     from replicate.world.env import observation_columns
@@ -96,7 +97,7 @@ def test_a_symmetric_actor_exports_and_fine_tunes_from_its_file(params, tmp_path
 
 def test_a_symmetric_run_has_its_own_identity(params):
     """A run of the plain actor keeps the identity it had before the option existed; a D4 run names it."""
-    from replicate.learn.general_train import general_identity
+    from replicate.learn.runs import general_identity
 
     def with_symmetry(value):
         return dataclasses.replace(params, general=dataclasses.replace(

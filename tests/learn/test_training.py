@@ -24,18 +24,9 @@ from replicate.core.artifacts import CheckpointError, read_text, write_csv
 from replicate.core.params import load_params, run_config
 from replicate.learn import fingerprint, maddpg, regression
 from replicate.learn.maddpg import MADDPG
-from replicate.learn.train import (
-    CURVE,
-    TRAINING_VERSION,
-    Trainer,
-    core_seconds,
-    finished_run,
-    load_actors,
-    lr_factor,
-    run_identity,
-    timed_by,
-    train,
-)
+from replicate.learn.runs import TRAINING_VERSION, core_seconds, finished_run, run_identity, timed_by
+from replicate.learn.schedules import lr_factor
+from replicate.learn.train import CURVE, Trainer, load_actors, train
 from replicate.world.scenario import run_env
 
 from ..conftest import ROOT
@@ -435,8 +426,8 @@ def test_cli_train_and_evaluate_with_baseline(tmp_path):
         (["train", "--resume", "/nonexistent/run"], "no such run folder"),
         (["train", "--seed", str(2**70), "--out", "/tmp/never-written"], "--seed must be a whole number"),
         (["train", "--seed", "-1"], "--seed must be a whole number from 0"),
-        (["--set", "coverage.radius=-0.5", "train"], "coverage.radius must be a positive number"),
-        (["--set", "world.n_agents=1000", "train"], "world.n_agents must be between 1 and 200"),
+        (["--set", "coverage.radius=-0.5", "train"], "coverage.radius must be above 0, got -0.5"),
+        (["--set", "world.n_agents=1000", "train"], "world.n_agents must be in [1, 200], got 1000"),
         (["cover", "--region", "data/bedok_outline.geojson", "--radius-m", "nan", "--out", "/tmp/never-written"],
          "--radius-m must be a positive number"),
         (["cover", "--method", "cr", "--region", "data/bedok_outline.geojson", "--episodes", "0", "--out",

@@ -7,7 +7,8 @@ import re
 from pathlib import Path
 
 from replicate.core.params import load_params
-from replicate.pipeline.report import ablation_effect, fmt_delta
+from replicate.pipeline.report.rules import fmt_delta
+from replicate.pipeline.report.tables import ablation_effect
 
 ROOT = Path(__file__).resolve().parents[2]
 

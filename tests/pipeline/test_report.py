@@ -9,15 +9,10 @@ import re
 
 from replicate.compare import stats
 from replicate.pipeline.evaluation import split_ablation
-from replicate.pipeline.report import (
-    arithmetic_line,
-    claims,
-    comparisons,
-    sensitivity,
-    span,
-    targets,
-    write_report,
-)
+from replicate.pipeline.report.claims import claims, comparisons, sensitivity, targets
+from replicate.pipeline.report.rules import span
+from replicate.pipeline.report.tables import arithmetic_line
+from replicate.pipeline.report.write import write_report
 
 from ..conftest import ROOT
 
@@ -171,7 +166,7 @@ def test_an_unfinished_matrix_is_named_at_the_top(params, tmp_path):
 
 def test_the_general_policys_bars_are_counted_per_cell(params):
     """``report.general``: each bar counts the cells that meet it; one cell short fails the bar."""
-    from replicate.pipeline.report import bar_table, general_section, general_verdicts
+    from replicate.pipeline.report.general import bar_table, general_section, general_verdicts
 
     def cell(region, event, general, lloyd, best=0.78, naive=0.7, outside=0.0):
         rivals = {"naive_tuned": naive, "lloyd_tuned": lloyd, "geodesic_lloyd": lloyd, "best_layout": best}

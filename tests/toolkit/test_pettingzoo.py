@@ -170,7 +170,7 @@ def test_starts_losses_and_a_current_pass_the_api_and_seed_tests():
 def test_a_gps_velocity_in_a_drift_stays_in_the_observation_space(shore):
     """Over the ground a buoy's velocity is its own plus the drift: the space's velocity bound grows with the
     current (a full push downstream, in the open and behind the wall)."""
-    from replicate.core.params import SensorsConfig
+    from replicate.core.sections import SensorsConfig
 
     env = CoverageParallelEnv("square", observation="local", sensors_config=SensorsConfig(velocity="ground"),
                               current=(0.6, 0.0), shore=shore, episode_length=30)
@@ -181,13 +181,13 @@ def test_a_gps_velocity_in_a_drift_stays_in_the_observation_space(shore):
         assert all(env.observation_space(a).contains(o) for a, o in obs.items())
         fastest = max([fastest, *(o[0] for o in obs.values())])
     assert fastest > 2.0  # beyond the terminal speed through the water: the drift is read
-    with pytest.raises(ValueError, match="sensors velocity must be 'water' or 'ground', got 'gps'"):
+    with pytest.raises(ValueError, match=r"SensorsConfig.velocity: 'gps' is not one of \['water', 'ground'\]"):
         CoverageParallelEnv("square", observation="local", sensors_config=SensorsConfig(velocity="gps"))
 
 
 def test_the_uncovered_water_sensor_passes_the_api_and_seed_tests():
     """``sensors.uncovered``: eight more columns, each a share in [0, 1], through losses and a drift."""
-    from replicate.core.params import SensorsConfig
+    from replicate.core.sections import SensorsConfig
 
     def make():
         return CoverageParallelEnv("bedok", observation="local", shore="wall", episode_length=20, start="random",

@@ -25,7 +25,7 @@ def test_a_gps_velocity_feels_the_current_and_a_log_does_not(params, regions):
     """``sensors.velocity``: over the ground (GPS) a buoy reads its displacement over the last step / dt, its
     velocity through the water plus the drift in open water; through the water (a log) the drift is invisible.
     Lost buoys read 0, a new episode starts at rest, and at the shore the reading is the buoy's actual motion."""
-    from replicate.core.params import SensorsConfig
+    from replicate.core.sections import SensorsConfig
 
     def make(frame, wall=False):
         return CoverageEnv(regions["square"], params.world, params.coverage, n_envs=2, observation="local",

@@ -10,7 +10,7 @@ import shapely
 from shapely.geometry import box
 
 from replicate.compare import baselines
-from replicate.core.params import LloydConfig
+from replicate.core.studies import LloydConfig
 from replicate.world.env import CoverageEnv
 from replicate.world.geodesic import geodesic_cells, geodesic_targets, water_graph
 

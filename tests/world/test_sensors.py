@@ -178,7 +178,7 @@ def test_uncovered_water_marks_a_neighbours_disc_and_forgets_a_lost_one():
 
 
 def test_the_uncovered_sensor_adds_its_columns_and_is_refused_beyond_the_rays(params, regions):
-    from replicate.core.params import SensorsConfig
+    from replicate.core.sections import SensorsConfig
     from replicate.world.env import CoverageEnv, observation_columns
 
     sc = SensorsConfig(velocity="ground", uncovered=(0.25, 0.5, 0.75, 1.0))
@@ -200,7 +200,8 @@ def test_the_uncovered_sensor_adds_its_columns_and_is_refused_beyond_the_rays(pa
             CoverageEnv(regions["bedok"], params.world, params.coverage, observation="local",
                         sensors_config=SensorsConfig(uncovered=beyond))
     assert SensorsConfig(uncovered=[0.5, 1.0]) == sc.__class__(uncovered=(0.5, 1.0))  # as a policy's metadata gives it
-    from replicate.core.params import ConfigError, load_params
+    from replicate.core.params import load_params
+    from replicate.core.schema import ConfigError
 
     with pytest.raises(ConfigError, match="uncovered radii"):  # params.yaml's value is refused as it is read
         load_params(Path(__file__).parents[2] / "params.yaml", {"general.sensors.uncovered": [3.0]})

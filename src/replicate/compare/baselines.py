@@ -18,7 +18,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
-from replicate.core.params import LloydConfig, NaiveConfig
+from replicate.core.studies import LloydConfig, NaiveConfig
 from replicate.world.env import CoverageEnv
 from replicate.world.geodesic import geodesic_targets, water_graph
 

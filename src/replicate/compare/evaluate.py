@@ -16,16 +16,11 @@ import torch
 
 from replicate.compare import baselines, metrics
 from replicate.core import artifacts
-from replicate.core.params import (
-    ConfigError,
-    LloydConfig,
-    NaiveConfig,
-    Params,
-    RunConfig,
-    StartsConfig,
-    run_config,
-)
-from replicate.learn.train import CURVE, core_seconds, load_actors
+from replicate.core.params import Params, RunConfig, run_config
+from replicate.core.schema import ConfigError
+from replicate.core.studies import LloydConfig, NaiveConfig, StartsConfig
+from replicate.learn.runs import core_seconds
+from replicate.learn.train import CURVE, load_actors
 from replicate.world import coverage
 from replicate.world.env import CoverageEnv
 from replicate.world.regions import Region
@@ -246,7 +241,7 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     that comparison out (its ratio is then None); Lloyd always runs."""
     from replicate.compare.best_layout import best_coverage
     from replicate.compare.stats import mean_interval
-    from replicate.core.params import SensorsConfig
+    from replicate.core.sections import SensorsConfig
     from replicate.world.scenario import horizon
     from replicate.world.shore import distance_outside
 
@@ -302,7 +297,7 @@ def general_episode(policy_path: str | Path, region: Region, params: Params, n_a
                     seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One episode of a general policy as ``evaluate_policy`` runs it (the wall, its sensors, the event) for
     the figures: positions [T + 1, N, 2] and the buoys in service [T + 1, N]."""
-    from replicate.core.params import SensorsConfig
+    from replicate.core.sections import SensorsConfig
 
     module, meta = general_policy(policy_path)
     env, steps = general_evaluation_env(params, region, n_agents, 1, SensorsConfig(**meta["sensor_config"]), current)

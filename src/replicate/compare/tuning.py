@@ -31,18 +31,12 @@ import numpy as np
 
 from replicate.compare import baselines
 from replicate.core.executor import map_jobs, parallel_slots
-from replicate.core.params import (
-    Dimension,
-    LloydConfig,
-    NaiveConfig,
-    Params,
-    StartsConfig,
-    run_config,
-    to_dict,
-    with_values,
-)
+from replicate.core.params import Params, run_config, with_values
+from replicate.core.schema import to_dict
+from replicate.core.studies import Dimension, LloydConfig, NaiveConfig, StartsConfig
 from replicate.learn.fingerprint import search_fingerprint
-from replicate.learn.train import TRAINING_VERSION, training_process
+from replicate.learn.process import training_process
+from replicate.learn.runs import TRAINING_VERSION
 from replicate.world import coverage
 from replicate.world.geometry import region_key
 from replicate.world.regions import Region

@@ -24,7 +24,8 @@ import numpy as np
 from replicate.compare import stats
 from replicate.core.artifacts import CheckpointError
 from replicate.core.executor import map_jobs
-from replicate.core.params import ConfigError, Params, load_params
+from replicate.core.params import Params, load_params
+from replicate.core.schema import ConfigError
 from replicate.world.lakes import design
 from replicate.world.regions import Region
 
@@ -86,7 +87,7 @@ def standing_baseline(params: Params, folder: Path) -> tuple[str, ...]:
     general training's current values on ``design.seeds``), refused by name when it is missing, unreadable, of
     other seeds than ``design.seeds`` or trained with other values than ``params`` (its runs' identities must
     match: a stale baseline would credit or blame the candidate for every change made since)."""
-    from replicate.learn.general_train import SEED_POLICY, finished_general, general_identity, seed_folder
+    from replicate.learn.runs import SEED_POLICY, finished_general, general_identity, seed_folder
 
     retrain = "`dvc repro train_design` trains it again, or give --baseline"
     summary = folder / "summary.json"
@@ -152,7 +153,7 @@ def _evaluate_lake(job: dict) -> list[dict]:
     """Every cell of one lake (a job of ``compare_versions``): every policy and Lloyd on the same episodes."""
     from replicate.compare.evaluate import evaluate_policy, lloyd_name
     from replicate.compare.suite import at_density, suite_event
-    from replicate.learn.train import training_process
+    from replicate.learn.process import training_process
 
     training_process()
     params = load_params(job["params"], job["overrides"])

@@ -17,7 +17,7 @@ import sys
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
 
-from replicate.core.params import ConfigError
+from replicate.core.schema import ConfigError
 
 EXECUTORS = ("local", "ray")
 

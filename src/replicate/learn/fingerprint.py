@@ -1,7 +1,7 @@
 """The arithmetic fingerprint: which floating-point numbers this code gives, with these libraries, on this CPU.
 
 A run is reproducible bit for bit only by code that computes what its code computed. ``TRAINING_VERSION``
-(``train.py``) names deliberate changes of that arithmetic, but an edit can change a result in its last bit
+(``runs``) names deliberate changes of that arithmetic, but an edit can change a result in its last bit
 without anyone meaning to: seeds 0-2 of the ``paper`` runs once differed from a rerun of the same version from the
 first episode's reward (3.35099 against 3.35101), and nothing recorded it. So every run records ``fingerprint()``
 in its ``run.json``: a digest of the numbers a fixed, tiny workload gives — a few steps of the coverage world with
@@ -34,7 +34,7 @@ from importlib.metadata import version
 import numpy as np
 import torch
 
-from replicate.core.params import (
+from replicate.core.sections import (
     CoverageConfig,
     CRRewardConfig,
     MADDPGConfig,
@@ -43,7 +43,8 @@ from replicate.core.params import (
     SWRewardConfig,
     WorldConfig,
 )
-from replicate.learn.maddpg import MADDPG, ReplayBuffer
+from replicate.learn.maddpg import MADDPG
+from replicate.learn.replay import ReplayBuffer
 from replicate.world.coverage import cover_area
 from replicate.world.currents import random_current
 from replicate.world.env import CoverageEnv
@@ -123,7 +124,8 @@ def _shared_update_numbers(digest) -> None:
     """Two updates of the shared actor and pooled critic on random fleets of 5-12 buoys padded to 12 (the observation
     of ``SENSORS``): every parameter after them, and the exported policy's actions."""
     from replicate.learn.policy import FleetPolicy
-    from replicate.learn.shared_maddpg import FleetBatch, SharedMADDPG
+    from replicate.learn.replay import FleetBatch
+    from replicate.learn.shared_maddpg import SharedMADDPG
 
     g = torch.Generator().manual_seed(4)
     od, b, n_max = 22, 256, 12

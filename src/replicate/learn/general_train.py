@@ -1,6 +1,6 @@
 """Training one policy for every lake: the shared actor and pooled critic (``shared_maddpg``) on many worlds.
 
-The worlds (``worlds``): the named regions of ``general.regions`` and ``general.lakes`` generated lakes, each
+The worlds (``training_worlds``): the named regions of ``general.regions`` and ``general.lakes`` generated lakes, each
 with N buoys behind the shore wall, observing only their local sensors (``observation: local``), rewarded by CR's
 eq. (5)-(6) with the difference credit. Each batch of E episodes plays in one world, the worlds in turn; a batch
 may start scattered over the water instead of in the corner patch, lose up to a third of its buoys half-way, or
@@ -14,7 +14,6 @@ the sensors it reads), ``curve.csv.gz`` (one row per batch), ``run.json``.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from pathlib import Path
@@ -24,10 +23,14 @@ import torch
 from tqdm import tqdm
 
 from replicate.core import artifacts
-from replicate.core.params import GeneralConfig, Params, to_dict
+from replicate.core.params import Params
+from replicate.core.schema import to_dict
+from replicate.core.sections import GeneralConfig
 from replicate.learn.fingerprint import general_fingerprint
-from replicate.learn.maddpg import NStepWriter
-from replicate.learn.shared_maddpg import FleetBatch, SharedMADDPG
+from replicate.learn.replay import FleetNStep, FleetReplay
+from replicate.learn.runs import general_identity
+from replicate.learn.schedules import lr_factor, noise_sigma_from_end
+from replicate.learn.shared_maddpg import SharedMADDPG
 from replicate.learn.training_worlds import World, make_worlds
 from replicate.world.currents import random_current
 from replicate.world.env import observation_columns
@@ -36,52 +39,6 @@ from replicate.world.scenario import general_env
 
 CURVE_COLUMNS = ["batch", "episodes", "world", "n_agents", "start", "lost", "current", "coverage", "critic_loss",
                  "q_abs", "sigma", "validation"]
-
-
-class FleetReplay:
-    """A replay memory of m-step transitions of fleets up to ``n_max`` buoys, padded and masked."""
-
-    def __init__(self, capacity: int, n_max: int, obs_dim: int):
-        shapes = {"obs": (obs_dim,), "act": (2,), "rew": (), "next_obs": (obs_dim,), "pos": (2,), "next_pos": (2,)}
-        self.data = {k: torch.zeros((capacity, n_max, *s)) for k, s in shapes.items()}
-        self.live = torch.zeros((capacity, n_max), dtype=torch.bool)
-        self.next_live = torch.zeros((capacity, n_max), dtype=torch.bool)
-        self.disc = torch.zeros(capacity)
-        self.capacity, self.size, self.ptr = capacity, 0, 0
-
-    def add(self, live: np.ndarray, next_live: np.ndarray, disc: float, **arrays: np.ndarray) -> None:
-        """E transitions of one fleet of N ≤ n_max buoys: arrays [E, N, ...], masks [E, N], bootstrapping at
-        next_obs with ``disc`` (γᵐ for m steps)."""
-        e, n = live.shape
-        rows = (self.ptr + np.arange(e)) % self.capacity
-        for key, value in arrays.items():
-            self.data[key][rows] = 0.0
-            self.data[key][rows, :n] = torch.as_tensor(value, dtype=torch.float32)
-        self.live[rows], self.next_live[rows] = False, False
-        self.live[rows, :n], self.next_live[rows, :n] = torch.as_tensor(live), torch.as_tensor(next_live)
-        self.disc[rows] = disc
-        self.ptr = (self.ptr + e) % self.capacity
-        self.size = min(self.size + e, self.capacity)
-
-    def sample(self, rng: np.random.Generator, batch: int) -> FleetBatch:
-        idx = torch.as_tensor(rng.integers(0, self.size, batch))
-        return FleetBatch(**{k: v[idx] for k, v in self.data.items()}, live=self.live[idx],
-                          next_live=self.next_live[idx], disc=self.disc[idx])
-
-
-class FleetNStep(NStepWriter):
-    """``maddpg.NStepWriter`` for a ``FleetReplay``: a step also carries the buoys in service (``live``) and their
-    positions (``pos``, ``next_pos``); a transition bootstraps with the buoys in service after its last step, so a
-    buoy lost in between is not bootstrapped (its rewards after the loss are 0, its future none)."""
-
-    def write(self, first: dict, ret: np.ndarray, end: dict, discount: float) -> None:
-        self.buffer.add(first["live"], end["live"], discount, obs=first["obs"], act=first["act"], rew=ret,
-                        next_obs=end["next_obs"], pos=first["pos"], next_pos=end["next_pos"])
-
-
-def noise_sigma(gc: GeneralConfig, progress: float) -> float:
-    """σ falls linearly from ``noise_start`` to ``noise_end`` over the first ``noise_decay`` of training."""
-    return gc.noise_end + (gc.noise_start - gc.noise_end) * max(0.0, 1.0 - progress / max(gc.noise_decay, 1e-9))
 
 
 class GeneralTrainer:
@@ -137,8 +94,8 @@ class GeneralTrainer:
         if self.initial_actor is not None:
             self.validate(0)  # the starting weights are the ones to beat
         for batch in tqdm(range(batches), disable=not self.progress, unit="batch"):
-            sigma = noise_sigma(gc, batch / batches)
-            self.agent.scale_learning_rates(1.0 - (1.0 - gc.lr_end) * batch / batches)
+            sigma = noise_sigma_from_end(gc, batch / batches)
+            self.agent.scale_learning_rates(lr_factor(gc, batch / batches))
             world = self.worlds[batch % len(self.worlds)]
             row = self.play(world, sigma)
             due = (batch + 1) % len(self.worlds) == 0 or batch == batches - 1
@@ -218,44 +175,9 @@ class GeneralTrainer:
                    "worlds": [{"region": w.region.name, "n_agents": w.n_agents} for w in self.worlds],
                    "selected_episode": self.best["episodes"], "selected_validation_coverage": self.best["validation"],
                    "wall_seconds": round(wall, 2), "cpu_seconds": round(cpu, 2),
-                   "arithmetic": general_fingerprint()}  # which numbers trained it (``arithmetic.py``)
+                   "arithmetic": general_fingerprint()}  # which numbers trained it (``fingerprint``)
         artifacts.write_json(self.out / "run.json", summary)
         return summary
-
-
-# ---- a run's record: what makes two runs the same, where a stage keeps it -------------------------------
-GENERAL_VERSION = 3  # raised when the general training's arithmetic changes: older runs are trained again
-# 2: the update runs on the buoys in service only and applies φ's last layer to the pooled mean (float rounding)
-# 3: a velocity over the ground is the buoy's displacement over the last step / dt (the shore's stop included)
-KEPT_POLICY = "general.pt"  # the best-validated seed's policy, the one a user deploys
-SEED_POLICY = "policy.pt"  # each seed's exported policy, in its run folder
-
-
-def general_identity(params, seed: int) -> dict:
-    """What makes two general runs the same run: the version, the seed and every value they train with."""
-    trained = {k: v for k, v in to_dict(params.general).items() if k not in ("seeds", "suite")}  # not its evaluation
-    if not trained["sensors"]["uncovered"]:  # an optional sensor, off: a run's identity names only what it used
-        del trained["sensors"]["uncovered"]
-    if trained["learner"]["symmetry"] == "none":  # so is an actor's symmetry
-        del trained["learner"]["symmetry"]
-    return {"general_version": GENERAL_VERSION, "seed": seed, "general": trained,
-            "world": to_dict(params.world), "coverage": to_dict(params.coverage),
-            "cr_reward": to_dict(params.cr_reward), "regions": to_dict(params.regions)}
-
-
-def finished_general(out: Path, identity: dict) -> dict | None:
-    """The summary of a finished general run in ``out`` with this identity, else None."""
-    path = out / "run.json"
-    if not (path.exists() and (out / "actor.pt").exists()):
-        return None
-    summary = json.loads(path.read_text())
-    same = summary.get("identity") == json.loads(json.dumps(identity))
-    return summary if same and summary.get("status") == "finished" else None
-
-
-def seed_folder(out: Path, seed: int) -> Path:
-    """A seed's run folder in a stage's output ``out``."""
-    return out / "runs" / f"general-s{seed}"
 
 
 def train_recorded(params, seed: int, out: Path, progress: bool = False) -> dict:

@@ -21,15 +21,14 @@ paper's modified MADDPG (critic i learns agent i's own reward, eq. 6).
 from __future__ import annotations
 
 import copy
-import dataclasses
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import nn
 
-from replicate.core.params import MADDPGConfig
+from replicate.core.sections import MADDPGConfig
+from replicate.learn.replay import Batch
 
 
 def stacked_matmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -113,112 +112,6 @@ class BatchedMLP(nn.Module):
                 d = stacked_matmul(d, w.mT)
                 torch.ops.aten.threshold_backward.grad_input(d, inputs[k], 0, grad_input=d)
         return d
-
-
-class ReplayBuffer:
-    """Preallocated ring buffer of joint transitions: obs/next_obs [C, N, obs_dim], act [C, N, act_dim],
-    rew [C, N], and the discount of the bootstrap at next_obs, disc [C] (γ for a one-step transition, γᵐ for an
-    m-step one; float32)."""
-
-    def __init__(self, capacity: int, n_agents: int, obs_dim: int, act_dim: int):
-        self.capacity = capacity
-        self.obs = np.zeros((capacity, n_agents, obs_dim), np.float32)
-        self.act = np.zeros((capacity, n_agents, act_dim), np.float32)
-        self.rew = np.zeros((capacity, n_agents), np.float32)
-        self.next_obs = np.zeros((capacity, n_agents, obs_dim), np.float32)
-        self.disc = np.zeros(capacity, np.float32)
-        self.ptr = 0
-        self.size = 0
-
-    def add(self, obs: np.ndarray, act: np.ndarray, rew: np.ndarray, next_obs: np.ndarray, discount: float) -> None:
-        """Add a batch of E transitions (leading axis E) that bootstrap at next_obs with ``discount``. No transition
-        is terminal: episodes end by time limit."""
-        idx = (self.ptr + np.arange(len(obs))) % self.capacity
-        self.obs[idx], self.act[idx], self.rew[idx], self.next_obs[idx] = obs, act, rew, next_obs
-        self.disc[idx] = discount
-        self.ptr = int((self.ptr + len(obs)) % self.capacity)
-        self.size = min(self.size + len(obs), self.capacity)
-
-    def sample(self, rng: np.random.Generator, batch: int) -> Batch:
-        """One minibatch of joint transitions for all agents (openai/maddpg draws one per agent; see
-        docs/DEVIATIONS.md). → tensors with leading [B]."""
-        idx = rng.integers(0, self.size, size=batch)
-        t = torch.from_numpy
-        return Batch(t(self.obs[idx]), t(self.act[idx]), t(self.rew[idx]), t(self.next_obs[idx]), t(self.disc[idx]))
-
-    def state_dict(self) -> dict:
-        """The filled part of the buffer, as tensors that share its memory (no copy of up to 250 MB): save them
-        before the buffer changes."""
-        n = self.size
-        t = torch.from_numpy
-        return {"obs": t(self.obs[:n]), "act": t(self.act[:n]), "rew": t(self.rew[:n]),
-                "next_obs": t(self.next_obs[:n]), "disc": t(self.disc[:n]), "ptr": self.ptr, "size": self.size}
-
-    def load_state_dict(self, state: dict) -> None:
-        n = int(state["size"])
-        if n > self.capacity or state["obs"].shape[1:] != self.obs.shape[1:]:
-            raise ValueError("replay buffer state does not fit this buffer")
-        self.obs[:n], self.act[:n] = state["obs"].numpy(), state["act"].numpy()
-        self.rew[:n], self.next_obs[:n] = state["rew"].numpy(), state["next_obs"].numpy()
-        self.disc[:n] = state["disc"].numpy()
-        self.ptr, self.size = int(state["ptr"]), n
-
-
-class NStepWriter:
-    """Writes the transitions of E environments that step in lockstep into a ``ReplayBuffer`` as n-step returns
-    (Sutton & Barto §7.1; n = 1 is the paper's one-step transition).
-
-    A transition from step t is written once its n rewards are known: r = Σ_{k<n} γᵏ r_{t+k}, next_obs = o_{t+n},
-    disc = γⁿ. The episode's last step (its time limit) writes the ones still open, each with the m < n rewards
-    left, bootstrapping at the last observation with γᵐ. Arrays are [E, N, ...] as in ``ReplayBuffer.add``.
-    A step is a dict of arrays with its reward under ``rew``; ``write`` stores one transition (another buffer's
-    writer overrides it: ``general_train.FleetNStep``).
-    """
-
-    def __init__(self, buffer, n: int, gamma: float):
-        if n < 1:
-            raise ValueError(f"n-step returns need n >= 1, got {n}")
-        self.buffer, self.n, self.gamma = buffer, n, gamma
-        self.open: list[dict] = []  # the unwritten steps, oldest first
-
-    def add(self, obs: np.ndarray, act: np.ndarray, rew: np.ndarray, next_obs: np.ndarray, last: bool) -> None:
-        self.push(last, obs=obs, act=act, rew=rew, next_obs=next_obs)
-
-    def push(self, last: bool, **step: np.ndarray) -> None:
-        """One step of every environment; ``last``: the episode's time limit, which writes every open step."""
-        self.open.append(step)
-        if len(self.open) == self.n:
-            self._write()
-        while last and self.open:
-            self._write()
-
-    def _write(self) -> None:
-        ret = self.open[0]["rew"]
-        for k in range(1, len(self.open)):
-            ret = ret + self.gamma**k * self.open[k]["rew"]
-        self.write(self.open[0], ret, self.open[-1], self.gamma ** len(self.open))
-        self.open.pop(0)
-
-    def write(self, first: dict, ret: np.ndarray, end: dict, discount: float) -> None:
-        """Store the transition of step ``first``: its m-step return ``ret``, bootstrapping after step ``end``."""
-        self.buffer.add(first["obs"], first["act"], ret, end["next_obs"], discount)
-
-
-@dataclass
-class Batch:
-    """Sampled joint transitions: obs/next_obs [B, N, obs_dim], act [B, N, act_dim], rew [B, N], disc [B]; a
-    stack of S runs' minibatches has a leading [S] on each."""
-
-    obs: torch.Tensor
-    act: torch.Tensor
-    rew: torch.Tensor
-    next_obs: torch.Tensor
-    disc: torch.Tensor
-
-    @classmethod
-    def stack(cls, batches: list[Batch]) -> Batch:
-        """The minibatches of S runs as one: every field gains a leading run axis [S, B, ...]."""
-        return cls(*(torch.stack([getattr(b, f.name) for b in batches]) for f in dataclasses.fields(cls)))
 
 
 def clip_grad_per_agent(params: list[torch.Tensor], max_norm: float) -> None:
@@ -352,7 +245,7 @@ class MADDPG:
         ``batch`` is [S, B, ...] (``Batch.stack``), or [B, ...] with one run. → each run's diagnostics, [S].
 
         The gradients are written out (``BatchedMLP.backward``); ``tests/learn/test_maddpg.py`` checks them against
-        the per-agent autograd loop of ``maddpg_loop``."""
+        the per-agent autograd loop of ``tests/learn/loop_maddpg.py``."""
         cfg, n, s = self.cfg, self.n, self.runs
         obs, act, next_obs = (self._with_runs(t.to(self.device), 3) for t in (batch.obs, batch.act, batch.next_obs))
         rew, disc = self._with_runs(batch.rew.to(self.device), 2), self._with_runs(batch.disc.to(self.device), 1)

@@ -18,7 +18,7 @@ from torch import nn
 
 from replicate.core import artifacts
 from replicate.core.artifacts import CheckpointError
-from replicate.core.params import SensorsConfig
+from replicate.core.sections import SensorsConfig
 
 
 class SwarmPolicy(nn.Module):

@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--write", required=True, help="folder to write the reference curves into")
     parser.add_argument("--params", default="params.yaml")
     args = parser.parse_args(argv)
-    from replicate.learn.train import training_process
+    from replicate.learn.process import training_process
 
     training_process()
     params = load_params(args.params)

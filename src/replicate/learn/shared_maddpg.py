@@ -27,7 +27,8 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from replicate.core.params import SharedLearnerConfig
+from replicate.core.sections import SharedLearnerConfig
+from replicate.learn.replay import FleetBatch
 from replicate.learn.symmetry import symmetric
 
 
@@ -127,22 +128,6 @@ class PooledCritic(nn.Module):
             q[live] = self(obs, act, pos, live, live_rows(live))
             return q
         return self.score(obs[rows], act[rows], self.pooled(obs, act, self.neighbours(pos, live, rows)))
-
-
-@dataclass
-class FleetBatch:
-    """Transitions of padded fleets, [B, N, ...]: ``rew`` [B, N] (m-step returns), ``disc`` [B] (γᵐ), ``live`` and
-    ``next_live`` [B, N] bool."""
-
-    obs: torch.Tensor
-    act: torch.Tensor
-    rew: torch.Tensor
-    next_obs: torch.Tensor
-    pos: torch.Tensor
-    next_pos: torch.Tensor
-    live: torch.Tensor
-    next_live: torch.Tensor
-    disc: torch.Tensor
 
 
 class SharedMADDPG:

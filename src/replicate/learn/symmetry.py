@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from replicate.core.params import Symmetry
+from replicate.core.sections import Symmetry
 
 
 def d4() -> np.ndarray:

@@ -21,77 +21,23 @@ from tqdm.auto import tqdm
 
 from replicate.core import artifacts
 from replicate.core.artifacts import CHECKPOINT_FORMAT, CheckpointError
-from replicate.core.params import ConfigError, RunConfig, to_dict
+from replicate.core.params import RunConfig
+from replicate.core.schema import ConfigError, to_dict
 from replicate.learn import run_stack
 from replicate.learn.fingerprint import fingerprint
-from replicate.learn.maddpg import MADDPG, Batch, NStepWriter, ReplayBuffer
-from replicate.world.geometry import region_key
+from replicate.learn.maddpg import MADDPG
+from replicate.learn.replay import Batch, NStepWriter, ReplayBuffer
+from replicate.learn.runs import run_identity
+from replicate.learn.schedules import lr_factor, noise_sigma
 from replicate.world.regions import Region
 from replicate.world.scenario import run_env
 
 DIAGNOSTICS = ("critic_loss", "q_abs", "saturated", "noise")
 CURVE = "curve.csv.gz"  # the per-episode curve of a run, in its folder
-# Part of every run's identity: raise it with any change that alters the numbers a run produces (the update's
-# arithmetic, the environment, the rewards), so that runs trained by older code are retrained, not reused.
-# 1: autograd update; 2: hand-written gradients in their fastest matmul forms (maddpg.py);
-# 3: a forward pass's narrow outputs (64 → 1, 64 → 2) by plain bmm, no longer transposed.
-TRAINING_VERSION = 3
 
 
 def curve_header(n_agents: int) -> list[str]:
     return ["episode", *[f"reward_{i}" for i in range(n_agents)], "team_reward", "coverage", *DIAGNOSTICS]
-
-
-def noise_sigma(cfg, progress: float) -> float:
-    """Exploration σ: linear from noise_start to noise_end over the first ``noise_decay`` of training."""
-    if cfg.noise_decay <= 0:
-        return cfg.noise_end
-    frac = min(progress / cfg.noise_decay, 1.0)
-    return cfg.noise_start + frac * (cfg.noise_end - cfg.noise_start)
-
-
-def lr_factor(cfg, progress: float) -> float:
-    """Learning-rate multiplier: linear from 1 at the first episode to ``lr_end`` at the last."""
-    return 1.0 + progress * (cfg.lr_end - 1.0)
-
-
-def run_identity(rc: RunConfig, region: Region, episodes: int, seed: int) -> dict:
-    """What makes two runs the same run: checked on resume, and by the pipeline to skip finished runs."""
-    return {
-        "training_version": TRAINING_VERSION,
-        "config": rc.config_name,
-        "method": rc.method_name,
-        "region": region.name,
-        "region_key": region_key(region.polygon),
-        "seed": seed,
-        "episodes": episodes,
-        "params": to_dict(rc, drop_defaults=True),
-    }
-
-
-def core_seconds(summary: dict) -> float:
-    """One core's time for a run: its process's CPU time (``cpu_seconds``; one thread, so other work on the machine
-    does not inflate it) shared among the runs trained in it, or for a run that recorded only its wall time, that
-    (runs trained one per process do not record ``runs_in_process``)."""
-    return summary.get("cpu_seconds", summary["wall_seconds"]) / summary.get("runs_in_process", 1)
-
-
-def timed_by(summary: dict) -> str:
-    """``cpu`` when ``core_seconds`` is the run's CPU time, ``wall`` when only its wall time was recorded (then
-    a second process on the core inflates it)."""
-    return "cpu" if "cpu_seconds" in summary else "wall"
-
-
-def finished_run(out: str | Path, identity: dict) -> dict | None:
-    """The summary of a finished run in ``out`` with this identity, else None."""
-    import json
-
-    path = Path(out) / "run.json"
-    if not (path.exists() and (Path(out) / "actors.pt").exists()):
-        return None
-    summary = json.loads(path.read_text())
-    same = all(summary.get(k) == v for k, v in identity.items())
-    return summary if same and summary.get("status") == "finished" else None
 
 
 def check_schedule(rc: RunConfig, episodes: int, checkpoint_every: int) -> None:
@@ -178,7 +124,7 @@ class Trainer:
         return run_identity(self.rc, self.region, self.episodes, self.seeds[run])
 
     def run_record(self, run: int = 0) -> dict:
-        """Run ``run``'s identity and the fingerprint of the arithmetic training it (``arithmetic.py``; recorded,
+        """Run ``run``'s identity and the fingerprint of the arithmetic training it (``fingerprint``; recorded,
         not compared: a run resumes or is kept whatever machine trained it)."""
         return {**self.identity(run), "arithmetic": fingerprint()}
 
@@ -394,35 +340,6 @@ class Trainer:
             artifacts.torch_save(out / "actors_last.pt", last)
             kept = {**meta, "actor": self.best[k]["actor"], "selected_episode": self.best[k]["episode"]}
             artifacts.torch_save(out / "actors.pt", kept)
-
-
-def hold_freed_memory() -> bool:
-    """Let glibc's allocator keep the memory an update frees, instead of handing it back to the kernel.
-
-    An update allocates and frees dozens of tensors of 0.1-7 MB. By default glibc maps a block above its mmap
-    threshold freshly from the kernel and unmaps it when freed, and trims the heap's top as soon as 128 KB are free
-    there, so every new tensor page-faults its memory in again: ~1.7 million faults per 1,000 episodes of a
-    ``paper`` stack, and its update ran ~1.2x slower, alone or beside a second ``paper`` process (``make bench``
-    section 4; a probe beside a ``tuned`` process measured 1.5x). Blocks up to 32 MB now
-    come from the heap, which keeps up to 512 MB free and grows 64 MB at a time. The arithmetic is untouched.
-    → whether the allocator took the settings (False where it is not glibc's)."""
-    import ctypes
-
-    try:
-        mallopt = ctypes.CDLL("libc.so.6").mallopt
-    except (OSError, AttributeError):
-        return False
-    m_trim_threshold, m_top_pad, m_mmap_threshold = -1, -2, -3  # <malloc.h>
-    settings = ((m_mmap_threshold, 32 << 20), (m_trim_threshold, 512 << 20), (m_top_pad, 64 << 20))
-    return all(mallopt(option, value) == 1 for option, value in settings)
-
-
-def training_process() -> None:
-    """Settings of a process that trains: one thread (one process per core is faster than threads for these
-    small matrices) and an allocator that keeps freed memory (``hold_freed_memory``). Called by the entry points:
-    the CLI, the pipeline's training processes, the tuning trials and the benchmarks."""
-    torch.set_num_threads(1)
-    hold_freed_memory()
 
 
 def train_runs(

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from replicate.core.params import GeneralConfig, Params
+from replicate.core.params import Params
+from replicate.core.sections import GeneralConfig
 from replicate.world.env import CoverageEnv
 from replicate.world.lakes import lake_region, training
 from replicate.world.regions import Region, make_region

@@ -87,7 +87,7 @@ def not_in_matrix(params: Params, ident: dict, run: Path, regions: dict) -> str 
     """Why the finished run ``run`` (its ``run.json`` is ``ident``) is not one the pipeline reports, or None: its
     config and seed must be in the matrix (``train.seeds``, ``ablation.seeds``), and its identity (code version,
     settings, region, episodes) the one params.yaml gives now. ``regions``: name → Region, built once."""
-    from replicate.learn.train import finished_run, run_identity
+    from replicate.learn.runs import finished_run, run_identity
 
     config = ident.get("config")
     if config not in params.all_configs():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ import numpy as np
 from replicate.compare.evaluate import BASELINES
 from replicate.core.artifacts import read_curve
 from replicate.core.params import load_params
-from replicate.learn.general_train import KEPT_POLICY
+from replicate.learn.runs import KEPT_POLICY
 from replicate.learn.train import CURVE
 from replicate.pipeline.evaluation import not_in_matrix
 from replicate.toolkit import plots
@@ -23,111 +24,149 @@ from replicate.world.osm import describe_source
 from replicate.world.regions import make_region
 
 
+@dataclass
+class Figures:
+    """What every figure of a pipeline run reads: the parameters, where PNGs go, the regions, the evaluation
+    summary, and the reported runs grouped by cell (config, method, region) with their curves."""
+
+    params: object
+    fig: Path
+    regions: dict
+    summary: dict
+    metrics_dir: Path
+    by_group: dict[tuple, list] = field(default_factory=dict)
+    curves_of: dict[tuple, list] = field(default_factory=dict)
+
+    def baseline_coverage(self, region_name: str, names) -> dict:
+        base = self.summary["baselines"]
+        return {b: base[f"{b}/{region_name}"]["coverage"] for b in names if f"{b}/{region_name}" in base}
+
+    def ceiling(self, region) -> float:
+        c = self.params.coverage
+        return coverage_ceiling(region.area, self.params.world.n_agents, c.radius, c.edges)
+
+
+def group_runs(f: Figures, runs_dir: Path) -> None:
+    """The reported runs of ``runs_dir`` by cell, with their curves (ablation runs and runs outside the matrix
+    are not reported: see ``evaluation.not_in_matrix``)."""
+    for run in sorted(p for p in runs_dir.iterdir() if (p / CURVE).exists()):
+        ident = json.loads((run / "run.json").read_text())
+        if ident["config"] not in f.params.configs or not_in_matrix(f.params, ident, run, f.regions):
+            continue
+        f.by_group.setdefault((ident["config"], ident["method"], ident["region"]), []).append(run)
+    f.curves_of.update({key: [read_curve(r / CURVE) for r in sorted(group)] for key, group in f.by_group.items()})
+
+
+def cell_figures(f: Figures) -> list:
+    """Per cell: the reward curves, an evaluation episode's spread, the training diagnostics (and the paper's
+    overall-coverage panel for paper CR-MARL on the square)."""
+    c, written = f.params.coverage, []
+    for (config, method, region_name), group in sorted(f.by_group.items()):
+        region, curves = f.regions[region_name], f.curves_of[(config, method, region_name)]
+        tag = f"{config}_{method}_{region_name}"
+        label = f"{'SW' if method == 'sw' else 'CR'}-MARL, {region_name}, {config} config"
+        first = sorted(group)[0]
+        written.append(plots.reward_curves(curves, method, f.fig / f"fig_{tag}_reward.png", label,
+                                           seed=json.loads((first / "run.json").read_text())["seed"]))
+        metrics = json.loads((f.metrics_dir / "runs" / f"{first.name}.json").read_text())
+        xy = np.array(metrics["example"]["final_positions"])
+        trails = np.array(metrics["example"]["trajectory"])
+        patch = start_patch(region.polygon, f.params.world.start_patch)
+        cov = metrics["coverage"]
+        note = f"seed {metrics['seed']}, evaluation coverage {cov['mean']:.2f} ({cov['n']} episodes)"
+        written.append(plots.spread(region.polygon, patch, xy, c.radius, c.edges, f.fig / f"fig_{tag}_spread.png",
+                                    f"{label}: final positions of an evaluation episode", trails, note))
+        validation = [read_curve(r / "validation.csv") if (r / "validation.csv").exists() else None
+                      for r in sorted(group)]
+        seeds = [json.loads((r / "run.json").read_text())["seed"] for r in sorted(group)]
+        written.append(plots.diagnostics(curves, f.fig / f"fig_{tag}_diagnostics.png", f"{label}, every seed",
+                                         validation=validation, seeds=seeds))
+        if config == "paper" and method == "cr" and region_name == "square":
+            written.append(plots.overall_coverage(region.polygon, xy, c.radius, c.edges,
+                                                  f.fig / "fig_overall_coverage.png", label))
+    return written
+
+
+def coverage_figures(f: Figures) -> list:
+    """Per config and region: coverage during training by method, beside the baselines and the ceiling."""
+    written = []
+    for config in f.params.configs:
+        for region_name, region in f.regions.items():
+            curves_by_method = {f"{m.upper()}-MARL": f.curves_of.get((config, m, region_name), [])
+                                for m in f.params.methods}
+            curves_by_method = {k: v for k, v in curves_by_method.items() if v}
+            if curves_by_method:
+                written.append(plots.coverage_vs_episode(
+                    curves_by_method, f.baseline_coverage(region_name, BASELINES), f.ceiling(region),
+                    f.fig / f"fig_{config}_coverage_{region_name}.png",
+                    f"Coverage during training, {region_name}, {config} config"))
+    return written
+
+
+def validation_figures(f: Figures) -> list:
+    """Per config that selects its actors, and region: its deterministic validation curve during training."""
+    written = []
+    for config in f.params.configs:
+        for region_name, region in f.regions.items():
+            validation = {f"{m.upper()}-MARL": [read_curve(r / "validation.csv") for r in sorted(group)]
+                          for (cf, m, rn), group in sorted(f.by_group.items()) if (cf, rn) == (config, region_name)
+                          and all((r / "validation.csv").exists() for r in group)}
+            if validation:
+                written.append(plots.evaluation_vs_episode(
+                    validation, f.baseline_coverage(region_name, ("naive_tuned", "lloyd_tuned")), f.ceiling(region),
+                    f.fig / f"fig_{config}_evaluation_{region_name}.png",
+                    f"Evaluation coverage during training, {region_name}, {config} config"))
+    return written
+
+
+def ablation_figures(f: Figures) -> list:
+    ab, written = f.params.ablation, []
+    for region_name in ab.regions:
+        rows = {k.split("/")[0]: v for k, v in f.summary.get("ablation", {}).items() if k.endswith(f"/{region_name}")}
+        if rows:
+            written.append(plots.ablation(rows, f.baseline_coverage(region_name, ("naive_tuned", "lloyd_tuned")),
+                                          f.fig / f"fig_ablation_{region_name}.png",
+                                          f"{ab.method.upper()}-MARL `{ab.base}` on {region_name}: each change "
+                                          "removed in turn"))
+    return written
+
+
+def bedok_map_figure(f: Figures, outline_path: str) -> Path:
+    """The Bedok outline in lon/lat and in its UTM zone, with its source and licence."""
+    import geopandas as gpd
+
+    from replicate.world.regions import region_from_file
+
+    outline = region_from_file(outline_path, area=None)
+    lonlat = gpd.read_file(outline_path).to_crs("EPSG:4326").geometry.iloc[0]
+    utm = gpd.GeoSeries([lonlat], crs="EPSG:4326").to_crs(outline.utm_crs).iloc[0]
+    return plots.bedok_map(lonlat, utm, outline.utm_crs, describe_source(outline_path), outline.attribution,
+                           f.fig / "fig_bedok_map.png")
+
+
 def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir: str, outline_path: str,
                  policies_dir: str | None = None) -> list:
     """Every figure of SPEC §9, one PNG per panel, for every configuration, and with ``policies_dir`` (the
     ``train_general`` folder; its suite in ``metrics_dir/general.json``) the general policy's; returns the
     paths written."""
-    from replicate.world.regions import region_from_file
-
-    params = load_params(params_path)
-    fig = Path(figures_dir)
-    runs_dir, metrics_dir = Path(runs_dir), Path(metrics_dir)
-    summary = json.loads((metrics_dir / "summary.json").read_text())
-    c = params.coverage
-    written = []
-    regions = {n: make_region(n, params.regions[n], params.world.region_area) for n in params.regions}
-    written.append(plots.three_cases(regions["square"].polygon, c.radius, c.edges, fig / "fig_agent_vs_region.png"))
-
-    runs = sorted(p for p in runs_dir.iterdir() if (p / CURVE).exists())
-    by_group: dict[tuple, list] = {}
-    for run in runs:
-        ident = json.loads((run / "run.json").read_text())
-        if ident["config"] not in params.configs or not_in_matrix(params, ident, run, regions):
-            continue  # ablation runs (fig_ablation_*), and runs the pipeline does not report (see evaluate)
-        by_group.setdefault((ident["config"], ident["method"], ident["region"]), []).append(run)
-
-    curves_of = {key: [read_curve(r / CURVE) for r in sorted(group)] for key, group in by_group.items()}
-    for (config, method, region_name), group in sorted(by_group.items()):
-        region = regions[region_name]
-        curves = curves_of[(config, method, region_name)]
-        tag = f"{config}_{method}_{region_name}"
-        label = f"{'SW' if method == 'sw' else 'CR'}-MARL, {region_name}, {config} config"
-        first = sorted(group)[0]
-        written.append(plots.reward_curves(curves, method, fig / f"fig_{tag}_reward.png", label,
-                                           seed=json.loads((first / "run.json").read_text())["seed"]))
-        metrics = json.loads((metrics_dir / "runs" / f"{first.name}.json").read_text())
-        xy = np.array(metrics["example"]["final_positions"])
-        trails = np.array(metrics["example"]["trajectory"])
-        patch = start_patch(region.polygon, params.world.start_patch)
-        cov = metrics["coverage"]
-        note = f"seed {metrics['seed']}, evaluation coverage {cov['mean']:.2f} ({cov['n']} episodes)"
-        written.append(plots.spread(region.polygon, patch, xy, c.radius, c.edges, fig / f"fig_{tag}_spread.png",
-                                    f"{label}: final positions of an evaluation episode", trails, note))
-        validation = [read_curve(r / "validation.csv") if (r / "validation.csv").exists() else None
-                      for r in sorted(group)]
-        seeds = [json.loads((r / "run.json").read_text())["seed"] for r in sorted(group)]
-        written.append(plots.diagnostics(curves, fig / f"fig_{tag}_diagnostics.png", f"{label}, every seed",
-                                         validation=validation, seeds=seeds))
-        if config == "paper" and method == "cr" and region_name == "square":
-            written.append(plots.overall_coverage(region.polygon, xy, c.radius, c.edges,
-                                                  fig / "fig_overall_coverage.png", label))
-
-    for config in params.configs:
-        for region_name, region in regions.items():
-            curves_by_method = {
-                f"{m.upper()}-MARL": curves_of.get((config, m, region_name), []) for m in params.methods
-            }
-            curves_by_method = {k: v for k, v in curves_by_method.items() if v}
-            if not curves_by_method:
-                continue
-            base = {b: summary["baselines"][f"{b}/{region_name}"]["coverage"] for b in BASELINES
-                    if f"{b}/{region_name}" in summary["baselines"]}
-            ceiling = coverage_ceiling(region.area, params.world.n_agents, c.radius, c.edges)
-            written.append(plots.coverage_vs_episode(curves_by_method, base, ceiling,
-                                                     fig / f"fig_{config}_coverage_{region_name}.png",
-                                                     f"Coverage during training, {region_name}, {config} config"))
-
-    for config in params.configs:  # configs that select their actors log a deterministic validation curve
-        for region_name, region in regions.items():
-            validation = {f"{m.upper()}-MARL": [read_curve(r / "validation.csv") for r in sorted(group)]
-                          for (cf, m, rn), group in sorted(by_group.items()) if (cf, rn) == (config, region_name)
-                          and all((r / "validation.csv").exists() for r in group)}
-            if not validation:
-                continue
-            base = {b: summary["baselines"][f"{b}/{region_name}"]["coverage"] for b in ("naive_tuned", "lloyd_tuned")
-                    if f"{b}/{region_name}" in summary["baselines"]}
-            ceiling = coverage_ceiling(region.area, params.world.n_agents, c.radius, c.edges)
-            written.append(plots.evaluation_vs_episode(
-                validation, base, ceiling, fig / f"fig_{config}_evaluation_{region_name}.png",
-                f"Evaluation coverage during training, {region_name}, {config} config"))
-
-    for region_name in params.ablation.regions:
-        rows = {k.split("/")[0]: v for k, v in summary.get("ablation", {}).items() if k.endswith(f"/{region_name}")}
-        if rows:
-            base = {b: summary["baselines"][f"{b}/{region_name}"]["coverage"] for b in ("naive_tuned", "lloyd_tuned")
-                    if f"{b}/{region_name}" in summary["baselines"]}
-            written.append(plots.ablation(rows, base, fig / f"fig_ablation_{region_name}.png",
-                                          f"{params.ablation.method.upper()}-MARL `{params.ablation.base}` on "
-                                          f"{region_name}: each change removed in turn"))
-
     from replicate.toolkit.animate import animate_run
 
-    for (config, method, region_name), group in sorted(by_group.items()):
+    params = load_params(params_path)
+    metrics_dir = Path(metrics_dir)
+    regions = {n: make_region(n, params.regions[n], params.world.region_area) for n in params.regions}
+    f = Figures(params, Path(figures_dir), regions, json.loads((metrics_dir / "summary.json").read_text()),
+                metrics_dir)
+    c = params.coverage
+    written = [plots.three_cases(regions["square"].polygon, c.radius, c.edges, f.fig / "fig_agent_vs_region.png")]
+    group_runs(f, Path(runs_dir))
+    written += cell_figures(f) + coverage_figures(f) + validation_figures(f) + ablation_figures(f)
+    for (config, method, region_name), group in sorted(f.by_group.items()):
         if method == "cr":  # one animated evaluation episode per region and configuration
             written.append(animate_run(sorted(group)[0], params, regions[region_name],
-                                       fig / f"anim_{config}_cr_{region_name}.gif"))
-
+                                       f.fig / f"anim_{config}_cr_{region_name}.gif"))
     if policies_dir is not None:
-        written += general_figures(params, Path(policies_dir) / KEPT_POLICY, metrics_dir / "general.json", fig)
-
-    outline = region_from_file(outline_path, area=None)
-    import geopandas as gpd
-
-    lonlat = gpd.read_file(outline_path).to_crs("EPSG:4326").geometry.iloc[0]
-    utm = gpd.GeoSeries([lonlat], crs="EPSG:4326").to_crs(outline.utm_crs).iloc[0]
-    written.append(plots.bedok_map(lonlat, utm, outline.utm_crs, describe_source(outline_path), outline.attribution,
-                                   fig / "fig_bedok_map.png"))
+        written += general_figures(params, Path(policies_dir) / KEPT_POLICY, metrics_dir / "general.json", f.fig)
+    written.append(bedok_map_figure(f, outline_path))
     return [str(p) for p in written]
 
 

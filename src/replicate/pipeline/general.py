@@ -20,15 +20,9 @@ from replicate.compare.suite import SuiteCell, at_density, suite_cells, suite_ev
 from replicate.core import artifacts
 from replicate.core.executor import map_jobs
 from replicate.core.params import load_params
-from replicate.learn.general_train import (
-    KEPT_POLICY,
-    SEED_POLICY,
-    finished_general,
-    general_identity,
-    seed_folder,
-    train_recorded,
-)
-from replicate.learn.train import training_process
+from replicate.learn.general_train import train_recorded
+from replicate.learn.process import training_process
+from replicate.learn.runs import KEPT_POLICY, SEED_POLICY, finished_general, general_identity, seed_folder
 from replicate.toolkit.export import export_general
 
 

@@ -16,7 +16,9 @@ from pathlib import Path
 from replicate.core import artifacts
 from replicate.core.executor import map_jobs
 from replicate.core.params import ablated_name, load_params, run_config, selection_only
-from replicate.learn.train import core_seconds, finished_run, run_identity, timed_by, train_runs, training_process
+from replicate.learn.process import training_process
+from replicate.learn.runs import core_seconds, finished_run, run_identity, timed_by
+from replicate.learn.train import train_runs
 from replicate.world.regions import make_region
 
 

@@ -38,7 +38,7 @@ def animate_trace(water: Polygon, trace: np.ndarray, alive: np.ndarray | None, r
     """One episode as a GIF (atomically): the water, each buoy's coverage polygon and trail, the coverage of the
     buoys in service in the title. ``trace`` [T + 1, N, 2]; ``alive`` [T + 1, N] (None: none lost; a lost buoy
     is drawn as a grey cross, without coverage); ``flow`` [2], a uniform current drawn as an arrow."""
-    from matplotlib.animation import FuncAnimation, PillowWriter
+    from matplotlib.animation import FuncAnimation
     from matplotlib.patches import Polygon as MplPolygon
 
     alive = np.ones(trace.shape[:2], bool) if alive is None else alive
@@ -76,20 +76,25 @@ def animate_trace(water: Polygon, trace: np.ndarray, alive: np.ndarray | None, r
         gone = int((~alive[t]).sum())
         title.set_text(f"{label}: step {t}, coverage {cover[t]:.2f}" + (f", {gone} lost" if gone else ""))
 
-    anim = FuncAnimation(fig, frame, frames=len(trace))
-    out = Path(out)
+    try:
+        return save_gif(FuncAnimation(fig, frame, frames=len(trace)), len(trace), Path(out), fps, progress)
+    finally:
+        plots.plt.close(fig)
+
+
+def save_gif(anim, frames: int, out: Path, fps: int, progress: bool) -> Path:
+    """Write an animation as a GIF atomically (mode 0644), with a progress bar of its frames."""
+    from matplotlib.animation import PillowWriter
+    from tqdm.auto import tqdm
+
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile(dir=out.parent, prefix=f".{out.name}.", suffix=".gif", delete=False) as tmp:
         tmp_path = Path(tmp.name)
-    from tqdm.auto import tqdm
-
     try:
-        with tqdm(total=len(trace), desc=f"drawing {out.name}", unit="frame", disable=not progress,
-                  leave=False) as bar:
+        with tqdm(total=frames, desc=f"drawing {out.name}", unit="frame", disable=not progress, leave=False) as bar:
             anim.save(tmp_path, writer=PillowWriter(fps=fps), progress_callback=lambda i, n: bar.update(1))
         tmp_path.chmod(0o644)
         tmp_path.replace(out)
     finally:
         tmp_path.unlink(missing_ok=True)
-        plots.plt.close(fig)
     return out

@@ -29,7 +29,8 @@ from shapely import affinity
 
 from replicate.compare.evaluate import evaluate_baseline, evaluate_run
 from replicate.core import artifacts
-from replicate.core.params import ConfigError, Params, run_config
+from replicate.core.params import Params, run_config
+from replicate.core.schema import ConfigError
 from replicate.learn.train import train
 from replicate.toolkit import plots
 from replicate.world.env import start_patch
@@ -117,6 +118,33 @@ def cover(
     return summary
 
 
+def finetuned(policy: Path, module, meta: dict, params: Params, region, steps: int, episodes: int, seed: int,
+              out: Path, progress: bool) -> dict:
+    """Train the general policy ``policy`` (``module``, ``meta``) on this one lake for ``episodes`` (rounded down to
+    ``general.n_envs``) from its own weights, sensors and width, into ``out/finetune``, and export the kept actor
+    to ``out/policy.pt`` → the run's summary."""
+    from replicate.core.sections import SensorsConfig
+    from replicate.learn.general_train import GeneralTrainer
+    from replicate.toolkit.export import export_general
+
+    gc, weights = params.general, dict(module.state_dict())
+    try:
+        symmetry = meta.get("symmetry", "none")  # a symmetric actor's MLP sits inside its average
+        first = "net.net.0.weight" if symmetry != "none" else "net.0.weight"
+        learner = dataclasses.replace(gc.learner, hidden=int(weights[first].shape[0]), symmetry=symmetry)
+        gc = dataclasses.replace(gc, episodes=episodes - episodes % gc.n_envs, episode_length=steps,
+                                 sensors=SensorsConfig(**meta["sensor_config"]), learner=learner)
+        trainer = GeneralTrainer(params, seed, out / "finetune", progress, gc, worlds=[(region, params.world.n_agents)],
+                                 actor=weights)
+    except (KeyError, RuntimeError, ValueError) as exc:  # another network than the shared actor, or symmetry
+        raise ConfigError(f"{policy}: its network is not the general policy's actor ({type(exc).__name__}); "
+                          "give a policy exported from a general run (`replicate export RUN`)") from None
+    trained = trainer.run()
+    export_general(out / "finetune" / "actor.pt", out / "policy.pt", params.world.sensitivity,
+                   meta.get("baseline_gains"))
+    return trained
+
+
 def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune: int = 0, seed: int = 0,
                   n_agents: int | None = None, radius_m: float | None = None, progress: bool = True) -> dict:
     """The general policy on the waterbody in ``path``: zero-shot, or fine-tuned there first for ``finetune``
@@ -125,9 +153,6 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
     Evaluated from the corner patch with its baselines (``evaluate.evaluate_policy``); ``out/spread.png`` and
     ``out/summary.json``."""
     from replicate.compare.evaluate import evaluate_policy, general_episode, general_policy, lloyd_name
-    from replicate.core.params import SensorsConfig
-    from replicate.learn.general_train import GeneralTrainer
-    from replicate.toolkit.export import export_general
     from replicate.world.scenario import horizon
 
     region, params = scaled_setup(path, params, n_agents, radius_m)
@@ -135,22 +160,8 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
     module, meta = general_policy(policy)
     steps = horizon(params.general, region, params.world.region_area)
     if finetune:
-        gc = params.general  # the policy's own sensors and width, this lake's horizon
-        weights = dict(module.state_dict())
-        try:
-            symmetry = meta.get("symmetry", "none")  # a symmetric actor's MLP sits inside its average
-            first = "net.net.0.weight" if symmetry != "none" else "net.0.weight"
-            learner = dataclasses.replace(gc.learner, hidden=int(weights[first].shape[0]), symmetry=symmetry)
-            gc = dataclasses.replace(gc, episodes=finetune - finetune % gc.n_envs, episode_length=steps,
-                                     sensors=SensorsConfig(**meta["sensor_config"]), learner=learner)
-            trainer = GeneralTrainer(params, seed, out / "finetune", progress, gc, worlds=[(region, n)],
-                                     actor=weights)
-        except (KeyError, RuntimeError, ValueError) as exc:  # another network than the shared actor, or symmetry
-            raise ConfigError(f"{policy}: its network is not the general policy's actor ({type(exc).__name__}); "
-                              "give a policy exported from a general run (`replicate export RUN`)") from None
-        trained = trainer.run()
+        trained = finetuned(policy, module, meta, params, region, steps, finetune, seed, out, progress)
         policy = out / "policy.pt"
-        export_general(out / "finetune" / "actor.pt", policy, params.world.sensitivity, meta.get("baseline_gains"))
     result = evaluate_policy(policy, region, params, n, "corner", progress=progress, geodesic=False)
     c = params.coverage
     trace, _ = general_episode(policy, region, params, n, "corner")

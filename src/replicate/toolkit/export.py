@@ -15,7 +15,8 @@ import torch
 
 from replicate.core import artifacts
 from replicate.core.artifacts import CheckpointError
-from replicate.core.params import SensorsConfig, to_dict
+from replicate.core.schema import to_dict
+from replicate.core.sections import SensorsConfig
 from replicate.learn.policy import FleetPolicy, SwarmPolicy, load_policy, save_policy, sensor_config
 from replicate.learn.train import load_actors
 from replicate.world.env import observation_columns

@@ -18,7 +18,8 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from replicate.core.params import Params, SensorsConfig, load_params, packaged
+from replicate.core.params import Params, load_params, packaged
+from replicate.core.sections import SensorsConfig
 from replicate.world.currents import Current
 from replicate.world.env import STARTS, CoverageEnv
 from replicate.world.regions import Region

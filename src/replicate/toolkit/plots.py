@@ -1,7 +1,8 @@
 """The paper's figures (SPEC §9), one PNG per panel, drawn from the package's own geometry and run outputs.
 
 Every function takes data (regions, positions, curves, metrics) and a path, writes the PNG atomically and
-returns the path. Nothing here computes a metric: values come from ``metrics``/``evaluate``.
+returns the path. Nothing here computes a metric: values come from ``world.coverage``, ``compare.metrics`` and
+``compare.evaluate``.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ import shapely
 from shapely.geometry import Polygon, box
 from shapely.ops import nearest_points
 
-from replicate.core.params import CoverageConfig, CRRewardConfig, SensorsConfig, SWRewardConfig, WorldConfig
+from replicate.core.sections import CoverageConfig, CRRewardConfig, SensorsConfig, SWRewardConfig, WorldConfig
 from replicate.world import rewards, sensors
 from replicate.world.geometry import CoverageGeometry
 from replicate.world.regions import Region, RegionError, signed_distance
@@ -79,6 +79,26 @@ def _sides(rect: Polygon) -> tuple[float, float]:
     return float(np.hypot(x[1] - x[0], y[1] - y[0])), float(np.hypot(x[2] - x[1], y[2] - y[1]))
 
 
+def check_options(n_envs: int, world: WorldConfig, reward, sw, cr, observation: str, union_credit: str) -> None:
+    """Refuse options the environment cannot run, by name."""
+    if observation not in OBSERVATIONS:
+        raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
+    if reward not in (None, "sw", "cr"):
+        raise ValueError(f"reward must be 'sw', 'cr' or None, got {reward!r}")
+    if reward == "sw" and sw is None or reward == "cr" and cr is None:
+        raise ValueError(f"reward {reward!r} needs its reward config")
+    if union_credit not in ("shared", "difference"):
+        raise ValueError(f"union_credit must be 'shared' or 'difference', got {union_credit!r}")
+    if n_envs < 1 or world.n_agents < 1:
+        raise ValueError("n_envs and n_agents must be at least 1")
+
+
+def fence_box(region: Polygon, margin: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lower-left, upper-right) of the geofence: the region's box grown by ``margin``."""
+    minx, miny, maxx, maxy = region.bounds
+    return np.array([minx, miny]) - margin, np.array([maxx, maxy]) + margin
+
+
 class CoverageEnv:
     """E parallel copies of the buoy world over one region.
 
@@ -107,16 +127,7 @@ class CoverageEnv:
         pay: Pay = Pay(),
         seed: int | np.random.SeedSequence | list = 0,
     ):
-        if observation not in OBSERVATIONS:
-            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
-        if reward not in (None, "sw", "cr"):
-            raise ValueError(f"reward must be 'sw', 'cr' or None, got {reward!r}")
-        if reward == "sw" and sw is None or reward == "cr" and cr is None:
-            raise ValueError(f"reward {reward!r} needs its reward config")
-        if union_credit not in ("shared", "difference"):
-            raise ValueError(f"union_credit must be 'shared' or 'difference', got {union_credit!r}")
-        if n_envs < 1 or world.n_agents < 1:
-            raise ValueError("n_envs and n_agents must be at least 1")
+        check_options(n_envs, world, reward, sw, cr, observation, union_credit)
         self.region = region
         self.world = world
         self.coverage = coverage
@@ -149,11 +160,7 @@ class CoverageEnv:
         self.ground_vel = None  # each buoy's displacement over the last step / dt, [E, N, 2]: what a GPS reads
         if wall:
             self.shore = shoreline(region.polygon, self.step_reach())
-        if geofence is None:
-            self.fence = None
-        else:
-            minx, miny, maxx, maxy = region.polygon.bounds
-            self.fence = (np.array([minx, miny]) - geofence, np.array([maxx, maxy]) + geofence)
+        self.fence = None if geofence is None else fence_box(region.polygon, geofence)
         self.seed(seed)
         self.pos = np.zeros((n_envs, self.n_agents, 2))
         self.vel = np.zeros((n_envs, self.n_agents, 2))

@@ -133,7 +133,7 @@ def held_out(count: int = 20, **draw) -> list[LakeSpec]:
 
 
 def design(count: int = 10, **draw) -> list[LakeSpec]:
-    """The design yardstick's lakes (``design.py``): ``count`` recipes from a stream of their own, on which two
+    """The design yardstick's lakes (``compare.yardstick``): ``count`` recipes from a stream of their own, on which two
     versions of a training are compared before one is kept, so that the choice never reads a lake the report
     judges it on (the held-out lakes) or one it trained on."""
     rng = np.random.default_rng(np.random.SeedSequence(DESIGN_ENTROPY))

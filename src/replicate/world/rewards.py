@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from replicate.core.params import CRRewardConfig, SWRewardConfig
+from replicate.core.sections import CRRewardConfig, SWRewardConfig
 from replicate.world.geometry import CoverTerms
 
 

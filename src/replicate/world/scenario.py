@@ -17,15 +17,8 @@ import dataclasses
 
 import numpy as np
 
-from replicate.core.params import (
-    CoverageConfig,
-    CRRewardConfig,
-    GeneralConfig,
-    Params,
-    RunConfig,
-    SensorsConfig,
-    region_world,
-)
+from replicate.core.params import Params, RunConfig, region_world
+from replicate.core.sections import CoverageConfig, CRRewardConfig, GeneralConfig, SensorsConfig
 from replicate.world.coverage import cover_area
 from replicate.world.currents import Current
 from replicate.world.env import CoverageEnv, Pay

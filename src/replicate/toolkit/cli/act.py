@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from replicate.core.params import ConfigError
+from replicate.core.schema import ConfigError
 
 
 def add(sub, verb: dict, regions: str) -> None:

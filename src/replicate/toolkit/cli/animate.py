@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from replicate.core.params import check_seed, load_params
+from replicate.core.params import load_params
+from replicate.core.schema import check_seed
 from replicate.toolkit.cli.inputs import (
     claim_out_file,
     overrides,

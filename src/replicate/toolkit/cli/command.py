@@ -9,7 +9,7 @@ import warnings
 import shapely
 
 from replicate.core.artifacts import CheckpointError
-from replicate.core.params import ConfigError
+from replicate.core.schema import ConfigError
 from replicate.toolkit.cli import act, animate, compare, cover, evaluate, export, init, train, train_general, tune
 from replicate.world.regions import RegionError
 
@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     args.set = (args.set or []) + (args.set_after_verb or [])
     warnings.simplefilter("default")
     if args.command in ("train", "cover", "tune"):
-        from replicate.learn.train import training_process
+        from replicate.learn.process import training_process
 
         training_process()
     try:

@@ -6,7 +6,8 @@ import argparse
 from pathlib import Path
 
 from replicate.core import artifacts
-from replicate.core.params import ConfigError, load_params
+from replicate.core.params import load_params
+from replicate.core.schema import ConfigError
 from replicate.toolkit.cli.inputs import (
     claim_out_file,
     overrides,
@@ -35,7 +36,7 @@ def add(sub, verb: dict, regions: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Two versions of the general training, several seeds each, on the design yardstick (``design.py``)."""
+    """Two versions of the general training, several seeds each, on the design yardstick (``compare.yardstick``)."""
     from replicate.compare.yardstick import STANDING, Versions, check_versions, compare_versions, standing_baseline
     from replicate.core.executor import configured_executor
 

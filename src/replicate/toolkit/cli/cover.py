@@ -7,7 +7,8 @@ import argparse
 from pathlib import Path
 
 from replicate.core import artifacts
-from replicate.core.params import MAX_AGENTS, ConfigError, Params, check_seed, load_params, positive
+from replicate.core.params import Params, load_params
+from replicate.core.schema import MAX_AGENTS, ConfigError, check_seed, positive
 from replicate.toolkit.cli.inputs import (
     claim_run_folder,
     overrides,
@@ -38,7 +39,7 @@ def add(sub, verb: dict, regions: str) -> None:
     c.add_argument("--n-agents", type=int, default=None, help="number of buoys, 1 to 200 (default: world.n_agents)")
     c.add_argument("--radius-m", type=float, default=None,
                    help="real scale: coverage radius in metres (default: the paper's 9 m² scale)")
-    c.add_argument("--out", default="runs/cover", help="output folder")
+    c.add_argument("--out", default="my-runs/cover", help="output folder")
     c.add_argument("--force", action="store_true", help="replace what --out holds (the folder is cleared first)")
     c.add_argument("--no-progress", action="store_true", help="no progress bars")
     c.set_defaults(func=run)

@@ -11,7 +11,8 @@ from pathlib import Path
 from shapely import affinity
 
 from replicate.core import artifacts
-from replicate.core.params import MAX_AGENTS, ConfigError, Params, load_params
+from replicate.core.params import Params, load_params
+from replicate.core.schema import MAX_AGENTS, ConfigError
 from replicate.toolkit.cli.inputs import (
     claim_out_file,
     overrides,
@@ -30,7 +31,7 @@ def add(sub, verb: dict, regions: str) -> None:
     e.add_argument("--region", default=None, help=f"{regions} (default: the run's own)")
     e.add_argument("--config", default="paper", help="a baseline runs with this config's physics and T")
     e.add_argument("--out", default=None,
-                   help="output JSON (default: RUN/metrics.json, or metrics/baseline-NAME-REGION.json)")
+                   help="output JSON (default: RUN/metrics.json, or my-runs/baseline-NAME-REGION.json)")
     e.add_argument("--force", action="store_true", help="replace --out if it exists")
     g = e.add_argument_group("a general policy, zero-shot on any region (instead of a run)")
     g.add_argument("--policy", default=None, help="a general policy file (`replicate export` of a general run)")
@@ -65,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     region = run_region(args.run, params, args.region) if args.run is not None else \
         resolve_region(args.region, params)
     default = (Path(args.run) / "metrics.json" if args.run is not None
-               else Path(f"metrics/baseline-{args.baseline}-{region.name}.json"))
+               else Path(f"my-runs/baseline-{args.baseline}-{region.name}.json"))
     out = claim_out_file(Path(args.out) if args.out else default, args.force)
     if args.run is not None:
         result = evaluate_run(args.run, params, region, progress=True)
@@ -108,7 +109,7 @@ def evaluate_general(args: argparse.Namespace, params: Params) -> int:
     s = math.sqrt(n / params.world.n_agents)  # the paper's density for any fleet: 9 buoys on 9 m²
     region = dataclasses.replace(region, polygon=affinity.scale(region.polygon, s, s, origin=(0, 0)),
                                  scale=region.scale / s)
-    out = claim_out_file(Path(args.out or f"policy-{region.name}-n{n}.json"), args.force)
+    out = claim_out_file(Path(args.out or f"my-runs/policy-{region.name}-n{n}.json"), args.force)
     result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current,
                              geodesic=args.geodesic)
     artifacts.write_json(out, result)

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import math
 from pathlib import Path
 
-from replicate.core.params import ConfigError, load_params
+from replicate.core.params import load_params
+from replicate.core.schema import ConfigError
 from replicate.toolkit.cli.inputs import (
     claim_out_file,
     overrides,
@@ -60,18 +59,19 @@ def read_baseline_gains(path: str | None) -> dict | None:
 
     if path is None:
         return None
-    from replicate.core.params import LloydConfig, NaiveConfig
+    from replicate.core.schema import build
+    from replicate.core.studies import LloydConfig, NaiveConfig
 
     try:
         gains = json.loads(Path(path).read_text())
-        naive = NaiveConfig(**gains["naive_tuned"]["gains"])
-        lloyd = LloydConfig(**gains["lloyd_tuned"]["gains"], converged_steps=0)
-        values = [*dataclasses.asdict(naive).values(), lloyd.gain, lloyd.damping]
-        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
-            raise ValueError(f"gains must be finite numbers, got {values}")
+        build(NaiveConfig, gains["naive_tuned"]["gains"], "naive_tuned.gains")  # finite numbers, every gain
+        build(LloydConfig, {**gains["lloyd_tuned"]["gains"], "converged_steps": 0}, "lloyd_tuned.gains")
     except FileNotFoundError:
         raise ConfigError(f"--baseline-gains {path}: no such file; `replicate tune general-baselines` writes it") \
             from None
+    except ConfigError as exc:
+        raise ConfigError(f"--baseline-gains {path}: not the general baselines' gains ({exc}); write it with "
+                          "`replicate tune general-baselines`") from None
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ConfigError(f"--baseline-gains {path}: not the general baselines' gains ({type(exc).__name__}: "
                           f"{exc}); write it with `replicate tune general-baselines`") from None

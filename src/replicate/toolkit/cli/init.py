@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from replicate.core import artifacts
-from replicate.core.params import ConfigError
+from replicate.core.schema import ConfigError
 from replicate.toolkit.cli.inputs import (
     claim_out_file,
 )

@@ -8,7 +8,8 @@ import sys
 from pathlib import Path
 
 from replicate.core.artifacts import CheckpointError
-from replicate.core.params import ConfigError, Params
+from replicate.core.params import Params
+from replicate.core.schema import ConfigError
 from replicate.world.regions import (
     Region,
     RegionError,

@@ -10,7 +10,8 @@ from pathlib import Path
 
 from replicate.core import artifacts
 from replicate.core.artifacts import CheckpointError
-from replicate.core.params import ConfigError, Params, check_seed, load_params, run_config
+from replicate.core.params import Params, load_params, run_config
+from replicate.core.schema import ConfigError, check_seed
 from replicate.toolkit.cli.inputs import (
     claim_run_folder,
     overrides,
@@ -32,7 +33,7 @@ def add(sub, verb: dict, regions: str) -> None:
     t.add_argument("--episodes", type=int, default=None,
                    help="training episodes, a multiple of the config's n_envs (default: train.episodes, 10,000)")
     t.add_argument("--seed", type=int, default=0, help="training seed, 0 to 2**32 - 1")
-    t.add_argument("--out", default=None, help="run folder (default: runs/CONFIG-METHOD-REGION-sSEED)")
+    t.add_argument("--out", default=None, help="run folder (default: my-runs/CONFIG-METHOD-REGION-sSEED)")
     t.add_argument("--checkpoint-every", type=int, default=None,
                    help="episodes between resumable checkpoints (default: train.checkpoint_every)")
     t.add_argument("--resume", default=None, metavar="RUN",
@@ -58,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         region = resolve_region(args.region, params)
         episodes = args.episodes if args.episodes is not None else params.train.episodes
         seed = check_seed(args.seed)
-        out = Path(args.out or f"runs/{args.config}-{args.method}-{region.name}-s{seed}")
+        out = Path(args.out or f"my-runs/{args.config}-{args.method}-{region.name}-s{seed}")
     for note in region.notes:
         print(f"region {region.name}: {note}", file=sys.stderr)
     args.interrupted_hint = f"`{resume_command(out)}` continues from the last checkpoint"
@@ -94,7 +95,8 @@ def resumed_run(run: Path, params: Params):
     settings it was started with, whatever params.yaml says now."""
     import json
 
-    from replicate.core.params import RunConfig, from_mapping
+    from replicate.core.params import RunConfig
+    from replicate.core.schema import build
     from replicate.world.geometry import region_key
 
     if not run.is_dir():
@@ -108,7 +110,7 @@ def resumed_run(run: Path, params: Params):
                           "episodes; one stopped before its first checkpoint starts again with --force)")
     ident = artifacts.torch_load(run / "checkpoint.pt").get("identity", {})
     try:
-        rc = from_mapping(RunConfig, ident["params"], f"{run}/checkpoint.pt")
+        rc = build(RunConfig, ident["params"], f"{run}/checkpoint.pt")
         episodes, seed, name = int(ident["episodes"]), int(ident["seed"]), ident["region"]
     except (KeyError, TypeError, ValueError) as exc:
         raise CheckpointError(f"{run}/checkpoint.pt: checkpoint is incomplete or mismatched ({exc})") from exc

@@ -7,7 +7,8 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from replicate.core.params import ConfigError, check_seed, load_params
+from replicate.core.params import load_params
+from replicate.core.schema import ConfigError, check_seed
 from replicate.toolkit.cli.inputs import (
     overrides,
 )
@@ -32,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     import shutil
 
     from replicate.learn.general_train import train_recorded
-    from replicate.learn.train import training_process
+    from replicate.learn.process import training_process
 
     params = load_params(args.params, overrides(args.set))
     check_seed(args.seed)

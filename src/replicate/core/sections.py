@@ -1,0 +1,313 @@
+"""The sections of ``params.yaml`` that make the world and the training: the world and its coverage, the rewards,
+the methods and training configs, the regions, the training schedule, and the general policy (its worlds, sensors,
+learner, evaluation suite) with the design yardstick's lakes.
+
+Each value's type and range stand beside it (``schema``); a rule that ties two values together is the section's
+``check``. YAML holds the values, these sections the types (BenchMARL style).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import model_validator
+
+from replicate.core.schema import (
+    MAX_AGENTS,
+    ConfigError,
+    Count,
+    Fleet,
+    In,
+    Int,
+    NonNegative,
+    Num,
+    Positive,
+    Seed,
+    Share,
+    Text,
+    Whole,
+    section,
+)
+
+EVENTS = ("none", "lose", "current")  # the suite's events: still water, a share of the fleet lost at T/2, a drift
+START_KINDS = ("corner", "random")  # where the suite and the yardstick release a fleet
+
+
+@section
+class WorldConfig:
+    n_agents: Annotated[Int, In(1, MAX_AGENTS)]
+    agent_radius: Positive
+    sensitivity: Positive
+    mass: Positive
+    dt: Positive
+    damping: Annotated[Num, In(0, 1, open_hi=True)]
+    episode_length: Count
+    start_patch: Positive
+    region_area: Positive
+
+
+@section
+class CoverageConfig:
+    radius: Positive
+    edges: Annotated[Int, In(3)]  # a coverage polygon needs at least 3 edges
+    table_spacing: Positive  # a cell wider than half the coverage polygon resolves nothing ...
+    raster_spacing: Positive  # ... (checked against radius below)
+
+    @model_validator(mode="after")
+    def check(self):
+        for key in ("table_spacing", "raster_spacing"):
+            if getattr(self, key) > self.radius / 2:
+                raise ConfigError(f"coverage.{key} must be in (0, {self.radius / 2:g}], got {getattr(self, key)}")
+        return self
+
+
+@section
+class SWRewardConfig:
+    r1: Num
+    r2: Num
+    alpha: Num
+    beta: Num
+    prop_range: tuple[Num, Num]
+    coll_range: tuple[Num, Num]
+
+
+@section
+class CRRewardConfig:
+    r1: Num
+    r2: Num
+    r3: Num
+    c1: Num
+    c2: Num
+
+
+@section
+class MethodConfig:
+    reward: Literal["sw", "cr"]
+    reward_mode: Literal["shared", "individual"]
+
+
+@section
+class MADDPGConfig:
+    hidden: Count
+    actor_lr: Positive
+    critic_lr: Positive
+    gamma: Annotated[Num, In(0, 1, open_lo=True)]
+    tau: Annotated[Num, In(0, 1, open_lo=True)]
+    batch_size: Count
+    buffer_size: Count
+    learning_starts: Whole
+    update_every: Annotated[Int, In(0, open_lo=True)]
+    grad_clip: Positive
+    actor_reg: NonNegative
+    noise_start: NonNegative
+    noise_end: NonNegative
+    noise_decay: Share
+    lr_end: NonNegative = 1.0  # learning rates fall linearly to this fraction of actor_lr/critic_lr by the last episode
+    n_step: Count = 1  # transitions hold n-step returns (1: the paper's one-step TD target)
+
+
+@section
+class SensorsConfig:
+    """What a buoy senses with ``observation: local`` (``sensors.py``): its velocity, the ``neighbours`` nearest
+    buoys it hears within ``comm_range`` m, the shore along ``rays`` compass directions up to ``ray_range`` m and,
+    with ``uncovered``, the share of water along each ray that no buoy it hears covers."""
+
+    neighbours: Annotated[Int, In(1, MAX_AGENTS)] = 4
+    comm_range: Positive = 2.0
+    rays: Annotated[Int, In(1, 360)] = 8
+    ray_range: Positive = 2.0
+    velocity: Literal["water", "ground"] = "water"  # through the water (a log) or over the ground (GPS)
+    uncovered: tuple[Num, ...] = ()  # m: radii of ``uncovered_water``'s points along each ray; () = no such sensor
+
+    @model_validator(mode="after")
+    def check(self):
+        if any(not 0 < r < self.ray_range for r in self.uncovered):
+            raise ConfigError(f"sensors uncovered radii must lie in (0, ray_range = {self.ray_range}) m (water is "
+                              f"known only short of it), got {list(self.uncovered)}")
+        return self
+
+
+@section
+class AlgoConfig:
+    observation: Literal["position", "position_velocity", "local"]
+    geofence: NonNegative | None
+    reward_scale: Positive
+    union_credit: Literal["shared", "difference"]
+    n_envs: Count
+    maddpg: MADDPGConfig
+    # Options added after the paper runs. At their neutral default they are left out of a run's identity
+    # (``to_dict(..., drop_defaults=True)``), so adding one does not invalidate finished runs.
+    union_weight: NonNegative | None = None  # c2 of eq. (6) for this config; None = cr_reward.c2
+    select_every: Whole = 0  # episodes between validation rollouts that pick the kept actors; 0 = keep the last
+    select_episodes: Count = 20  # validation episodes (fixed starts, deterministic policy) per selection
+    # "fence": the geofence above bounds the world (None: the paper's open plane); "wall": the shoreline does,
+    # no buoy ever leaves the water (``shore.wall_step``)
+    shore: Literal["fence", "wall"] = "fence"
+    sensors: SensorsConfig = SensorsConfig()  # read with observation "local" only
+    # Values for one method only, chosen by that method's own search (``params.yaml`` ``tuning.method``):
+    # method → {dotted key inside this config: value}. ``run_config`` applies them; a run's config holds none.
+    per_method: dict[str, dict[str, Any]] | None = None
+
+
+@section
+class RegionSpec:
+    kind: Literal["box", "file"]
+    width: Num | None = None
+    height: Num | None = None
+    path: Text | None = None
+    episode_length: Count | None = None  # T for this region (every method and baseline); None = world's
+
+
+@section
+class TrainConfig:
+    episodes: Count
+    seeds: dict[str, tuple[Seed, ...]]  # config → the training seeds of its reported runs
+    checkpoint_every: Count
+
+    def seeds_of(self, config: str) -> tuple[int, ...]:
+        """The reported seeds of ``config``; an ablation config ``BASE-without-CHANGE`` has no seeds of its own
+        (``ablation.seeds`` gives them)."""
+        if config not in self.seeds:
+            raise ConfigError(f"train.seeds has no seeds for config {config!r}; known: {sorted(self.seeds)}")
+        return self.seeds[config]
+
+
+@section
+class RegressionConfig:
+    region: Text
+    seed: Seed
+    episodes: Count
+    n_envs: Count
+    learning_starts: Whole
+    batch_size: Count
+    tolerance: NonNegative
+
+
+Symmetry = Literal["none", "d4"]  # of the general actor (``symmetry``): none, or the compass's turns and mirrors
+
+
+@section
+class SharedLearnerConfig:
+    """The networks and optimisers of ``shared_maddpg.SharedMADDPG``."""
+
+    hidden: Count = 64
+    embed: Count = 64  # width of φ, the embedding of one other buoy that the critic pools
+    actor_lr: Positive = 1e-3
+    critic_lr: Positive = 1e-3
+    tau: Annotated[Num, In(0, 1, open_lo=True)] = 0.01
+    grad_clip: Positive = 0.5
+    actor_reg: NonNegative = 1e-3  # on the pre-tanh action, as openai/maddpg
+    pool_range: NonNegative = 0.0  # m: the critic pools only the others this close (0: every other buoy of the fleet)
+    pool_neighbours: Annotated[Int, In(0, MAX_AGENTS)] = 0  # the critic pools each buoy's K nearest (0: all)
+    symmetry: Symmetry = "none"  # "d4": the actor averaged over the compass's quarter turns and mirrors
+
+
+def check_starts(starts: tuple[str, ...], where: str) -> None:
+    if bad := [s for s in starts if s not in START_KINDS]:
+        raise ConfigError(f"{where}: 'corner' or 'random', got {bad[0]!r}")
+
+
+@section
+class SuiteConfig:
+    """The general policy's evaluation suite (``compare.suite``): lakes × fleets × starts × events."""
+
+    held_out: Whole  # generated lakes of ``lakes.held_out``, never trained on
+    named_fleets: tuple[Fleet, ...]  # N on the square, the rectangle and Bedok (each at the paper's density)
+    lake_fleets: tuple[Fleet, ...]  # N on every held-out lake (each at its own density)
+    starts: tuple[Text, ...]  # of ``START_KINDS``
+    events: tuple[Text, ...]  # of ``EVENTS``, on every lake and fleet
+    lose_fraction: Annotated[Num, In(0, 0.5, open_lo=True)]  # "lose": this share lost at T/2 (most of a fleet stays)
+    current: NonNegative  # the "current" event: a uniform drift of this speed, m/s
+    episodes: Count  # per cell
+
+    @model_validator(mode="after")
+    def check(self):
+        check_starts(self.starts, "general.suite.starts")
+        ev = self.events
+        if "none" not in ev or not set(ev) <= set(EVENTS) or len(set(ev)) < len(ev):
+            raise ConfigError(f"general.suite.events: 'none' (still water, which the events are read against) and "
+                              f"any of {list(EVENTS[1:])}, each once, got {list(ev)}")
+        return self
+
+
+@section
+class DesignConfig:
+    """The design yardstick (``compare.yardstick``): where two versions of the general training are compared before
+    one is kept, on lakes of a seed stream of their own (``lakes.design``: never trained on, never reported), with
+    the training seed as the unit."""
+
+    lakes: Count  # generated lakes of ``lakes.design``, each at its own density
+    fleets: tuple[Fleet, ...]  # N on every lake
+    starts: tuple[Text, ...]  # of ``START_KINDS``
+    events: tuple[Text, ...]  # of ``EVENTS``, sized as the suite's (``general.suite.lose_fraction``, ``current``)
+    episodes: Count  # per cell
+    seed: Seed  # the evaluation starts: not ``evaluate.seed``, whose starts are reported
+    min_seeds: Annotated[Int, In(2)]  # training seeds a version needs: fewer make the interval over seeds too narrow
+    min_gain: Annotated[Num, In(-1, 1)]  # the candidate is kept when the interval of its gain lies above this
+    seeds: tuple[Seed, ...]  # the standing baseline's training seeds (``train_design``): never reported
+
+    @model_validator(mode="after")
+    def check(self):
+        for name, values in (("fleets", self.fleets), ("starts", self.starts)):
+            if not values or len(set(values)) < len(values):
+                raise ConfigError(f"design.{name}: at least one, each once, got {list(values)}")
+        check_starts(self.starts, "design.starts")
+        if not self.events or not set(self.events) <= set(EVENTS) or len(set(self.events)) < len(self.events):
+            raise ConfigError(f"design.events: any of {list(EVENTS)}, each once, got {list(self.events)}")
+        if len(set(self.seeds)) < len(self.seeds) or len(self.seeds) < self.min_seeds:
+            raise ConfigError(f"design.seeds: at least design.min_seeds ({self.min_seeds}) seeds, each once, got "
+                              f"{list(self.seeds)}")
+        return self
+
+
+@section
+class GeneralConfig:
+    """One policy for every lake (``general_train``): the worlds it trains on, the events, the schedule."""
+
+    regions: tuple[Text, ...]  # named regions of ``regions`` trained on, with ``fleet`` buoys each
+    fleet: tuple[Fleet, ...]  # N of a named region's world, one drawn per world
+    lakes: Whole  # generated training lakes (``lakes.training``: the same for every seed)
+    lake_fleet: tuple[Fleet, Fleet]  # N range of a generated lake
+    lake_ratio: tuple[Positive, Positive]  # N·A(Cov)/A(Reg) range of a generated lake
+    random_starts: Share  # share of batches released scattered over the water (the rest in the corner patch)
+    lose_prob: Share  # share of batches that lose buoys at T/2 ...
+    lose_fraction: Share  # ... up to this share of the fleet
+    current_prob: Share  # share of batches in moving water ...
+    current_speed: NonNegative  # ... up to this drift speed, m/s (top speed is 2)
+    n_envs: Count
+    episodes: Count
+    episode_length: Count
+    reward_scale: Positive
+    union_weight: Num  # c2 of eq. (6), with the difference credit
+    cover_weight: NonNegative  # c1 of eq. (6): the weight of eq. (5)'s per-buoy terms (0: the difference credit alone)
+    shore_penalty: NonNegative  # subtracted (after reward_scale) per step from a buoy resting on the shore
+    gamma: Annotated[Num, In(0, 1, open_lo=True)]
+    n_step: Annotated[Int, In(1, 50)]  # n-step TD targets (1: MADDPG's one-step target)
+    lr_end: Annotated[Num, In(0, 1, open_lo=True)]  # both learning rates fall linearly to lr_end x their start
+    batch_size: Count
+    buffer_size: Count
+    learning_starts: Whole  # transitions
+    update_every: Count  # transitions (summed over the environments) per update
+    noise_start: NonNegative
+    noise_end: NonNegative
+    noise_decay: Share  # share of training over which σ falls from start to end
+    seeds: tuple[Seed, ...]
+    sensors: SensorsConfig
+    learner: SharedLearnerConfig
+    suite: SuiteConfig
+
+    @model_validator(mode="after")
+    def check(self):
+        if self.episodes < self.n_envs:
+            raise ConfigError(f"general.episodes ({self.episodes}) must be at least general.n_envs ({self.n_envs}): "
+                              "one batch")
+        if self.lake_fleet[0] > self.lake_fleet[1] or self.lake_ratio[0] > self.lake_ratio[1]:
+            raise ConfigError(f"general.lake_fleet and lake_ratio are [low, high] ranges, got {list(self.lake_fleet)} "
+                              f"and {list(self.lake_ratio)}")
+        if not self.seeds:
+            raise ConfigError("general.seeds: at least one seed")
+        if self.learner.symmetry != "none" and self.sensors.rays % 4:
+            raise ConfigError(f"general.learner.symmetry {self.learner.symmetry}: the compass's turns permute the "
+                              "shore rays only when their number is a multiple of 4, got general.sensors.rays = "
+                              f"{self.sensors.rays}")
+        return self

@@ -1,0 +1,94 @@
+"""A training run's record: what makes two runs the same run (their identity: the version of the training's
+arithmetic and every value they train with), whether a folder holds a finished run of that identity, where a
+stage keeps a general seed, and one core's time for a run. The pipeline keeps a finished run of the same identity
+instead of training it again."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from replicate.core.params import RunConfig
+from replicate.core.schema import to_dict
+from replicate.world.geometry import region_key
+from replicate.world.regions import Region
+
+# Part of every run's identity: raise it with any change that alters the numbers a run produces (the update's
+# arithmetic, the environment, the rewards), so that runs trained by older code are retrained, not reused.
+# 1: autograd update; 2: hand-written gradients in their fastest matmul forms (maddpg.py);
+# 3: a forward pass's narrow outputs (64 → 1, 64 → 2) by plain bmm, no longer transposed.
+TRAINING_VERSION = 3
+
+
+def run_identity(rc: RunConfig, region: Region, episodes: int, seed: int) -> dict:
+    """What makes two runs the same run: checked on resume, and by the pipeline to skip finished runs."""
+    return {
+        "training_version": TRAINING_VERSION,
+        "config": rc.config_name,
+        "method": rc.method_name,
+        "region": region.name,
+        "region_key": region_key(region.polygon),
+        "seed": seed,
+        "episodes": episodes,
+        "params": to_dict(rc, drop_defaults=True),
+    }
+
+
+def core_seconds(summary: dict) -> float:
+    """One core's time for a run: its process's CPU time (``cpu_seconds``; one thread, so other work on the machine
+    does not inflate it) shared among the runs trained in it, or for a run that recorded only its wall time, that
+    (runs trained one per process do not record ``runs_in_process``)."""
+    return summary.get("cpu_seconds", summary["wall_seconds"]) / summary.get("runs_in_process", 1)
+
+
+def timed_by(summary: dict) -> str:
+    """``cpu`` when ``core_seconds`` is the run's CPU time, ``wall`` when only its wall time was recorded (then
+    a second process on the core inflates it)."""
+    return "cpu" if "cpu_seconds" in summary else "wall"
+
+
+def finished_run(out: str | Path, identity: dict) -> dict | None:
+    """The summary of a finished run in ``out`` with this identity, else None."""
+    import json
+
+    path = Path(out) / "run.json"
+    if not (path.exists() and (Path(out) / "actors.pt").exists()):
+        return None
+    summary = json.loads(path.read_text())
+    same = all(summary.get(k) == v for k, v in identity.items())
+    return summary if same and summary.get("status") == "finished" else None
+
+
+# ---- a general run: one policy for any lake ------------------------------------------------------------------
+GENERAL_VERSION = 3  # raised when the general training's arithmetic changes: older runs are trained again
+# 2: the update runs on the buoys in service only and applies φ's last layer to the pooled mean (float rounding)
+# 3: a velocity over the ground is the buoy's displacement over the last step / dt (the shore's stop included)
+KEPT_POLICY = "general.pt"  # the best-validated seed's policy, the one a user deploys
+SEED_POLICY = "policy.pt"  # each seed's exported policy, in its run folder
+
+
+def general_identity(params, seed: int) -> dict:
+    """What makes two general runs the same run: the version, the seed and every value they train with."""
+    trained = {k: v for k, v in to_dict(params.general).items() if k not in ("seeds", "suite")}  # not its evaluation
+    if not trained["sensors"]["uncovered"]:  # an optional sensor, off: a run's identity names only what it used
+        del trained["sensors"]["uncovered"]
+    if trained["learner"]["symmetry"] == "none":  # so is an actor's symmetry
+        del trained["learner"]["symmetry"]
+    return {"general_version": GENERAL_VERSION, "seed": seed, "general": trained,
+            "world": to_dict(params.world), "coverage": to_dict(params.coverage),
+            "cr_reward": to_dict(params.cr_reward), "regions": to_dict(params.regions)}
+
+
+def finished_general(out: Path, identity: dict) -> dict | None:
+    """The summary of a finished general run in ``out`` with this identity, else None."""
+    path = out / "run.json"
+    if not (path.exists() and (out / "actor.pt").exists()):
+        return None
+    summary = json.loads(path.read_text())
+    same = summary.get("identity") == json.loads(json.dumps(identity))
+    return summary if same and summary.get("status") == "finished" else None
+
+
+def seed_folder(out: Path, seed: int) -> Path:
+    """A seed's run folder in a stage's output ``out``."""
+    return out / "runs" / f"general-s{seed}"
