@@ -8,7 +8,7 @@ Each value's type and range stand beside it (``schema``); a rule that ties two v
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import model_validator
 
@@ -118,6 +118,9 @@ class SensorsConfig:
     ray_range: Positive = 2.0
     velocity: Literal["water", "ground"] = "water"  # through the water (a log) or over the ground (GPS)
     uncovered: tuple[Num, ...] = ()  # m: radii of ``uncovered_water``'s points along each ray; () = no such sensor
+    # Values added after general runs were trained: at their default they are left out of a run's identity
+    # (``runs.general_identity``), so adding one keeps the finished runs valid.
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("uncovered",)
 
     @model_validator(mode="after")
     def check(self):
@@ -200,6 +203,7 @@ class SharedLearnerConfig:
     pool_range: NonNegative = 0.0  # m: the critic pools only the others this close (0: every other buoy of the fleet)
     pool_neighbours: Annotated[Int, In(0, MAX_AGENTS)] = 0  # the critic pools each buoy's K nearest (0: all)
     symmetry: Symmetry = "none"  # "d4": the actor averaged over the compass's quarter turns and mirrors
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("symmetry",)  # left out of a run's identity at their default (as sensors')
 
 
 def check_starts(starts: tuple[str, ...], where: str) -> None:

@@ -167,8 +167,8 @@ class GeneralTrainer:
         artifacts.torch_save(self.out / "actor.pt", {
             "format": artifacts.CHECKPOINT_FORMAT, "actor": self.best["actor"], "observation": "local",
             "sensors": to_dict(gc.sensors),
-            "columns": observation_columns("local", gc.sensors), "hidden": gc.learner.hidden,
-            "symmetry": gc.learner.symmetry,
+            "columns": observation_columns("local", gc.sensors), "learner": to_dict(gc.learner),
+            "hidden": gc.learner.hidden, "symmetry": gc.learner.symmetry,
             "selected_episode": self.best["episodes"], "seed": self.seed})
         artifacts.write_csv(self.out / "curve.csv.gz", CURVE_COLUMNS, self.rows)
         summary = {"status": "finished", "seed": self.seed, "general": to_dict(gc),

@@ -5,6 +5,7 @@ instead of training it again."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -67,16 +68,25 @@ KEPT_POLICY = "general.pt"  # the best-validated seed's policy, the one a user d
 SEED_POLICY = "policy.pt"  # each seed's exported policy, in its run folder
 
 
+def identity_of(section) -> dict:
+    """A section as a run's identity records it: ``to_dict``, less every value its section lists as ``OPTIONAL``
+    that holds its default (a value added after runs were trained leaves them valid until it is used)."""
+    out = {}
+    for f in dataclasses.fields(section):
+        value = getattr(section, f.name)
+        if f.name in getattr(section, "OPTIONAL", ()) and value == f.default:
+            continue
+        out[f.name] = identity_of(value) if dataclasses.is_dataclass(value) else to_dict(value)
+    return out
+
+
 def general_identity(params, seed: int) -> dict:
     """What makes two general runs the same run: the version, the seed and every value they train with."""
-    trained = {k: v for k, v in to_dict(params.general).items() if k not in ("seeds", "suite")}  # not its evaluation
-    if not trained["sensors"]["uncovered"]:  # an optional sensor, off: a run's identity names only what it used
-        del trained["sensors"]["uncovered"]
-    if trained["learner"]["symmetry"] == "none":  # so is an actor's symmetry
-        del trained["learner"]["symmetry"]
+    trained = {k: v for k, v in identity_of(params.general).items()
+               if k not in ("seeds", "suite")}  # what it trained with, not how it is evaluated
     return {"general_version": GENERAL_VERSION, "seed": seed, "general": trained,
-            "world": to_dict(params.world), "coverage": to_dict(params.coverage),
-            "cr_reward": to_dict(params.cr_reward), "regions": to_dict(params.regions)}
+            "world": identity_of(params.world), "coverage": identity_of(params.coverage),
+            "cr_reward": identity_of(params.cr_reward), "regions": to_dict(params.regions)}
 
 
 def finished_general(out: Path, identity: dict) -> dict | None:

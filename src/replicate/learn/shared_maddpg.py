@@ -52,6 +52,20 @@ class SharedActor(nn.Module):
         super().__init__()
         self.net = symmetric(mlp([obs_dim, hidden, hidden, act_dim]), columns or [], symmetry)
 
+    @classmethod
+    def of(cls, obs_dim: int, act_dim: int, cfg: SharedLearnerConfig, columns: list[str] | None = None):
+        """The actor of a learner's configuration: the one place its network is read from ``general.learner``."""
+        return cls(obs_dim, act_dim, cfg.hidden, cfg.symmetry, columns)
+
+    @classmethod
+    def from_checkpoint(cls, saved: dict):
+        """The actor of a general run's ``actor.pt`` (``general_train``), weights loaded: its learner's
+        configuration as saved (files written before it was saved name only the width and the symmetry)."""
+        learner = saved.get("learner") or {"hidden": saved["hidden"], "symmetry": saved.get("symmetry", "none")}
+        actor = cls.of(len(saved["columns"]), 2, SharedLearnerConfig(**learner), saved["columns"])
+        actor.load_state_dict(saved["actor"])
+        return actor
+
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         pre = self.net(obs)
         return torch.tanh(pre), pre
@@ -139,7 +153,7 @@ class SharedMADDPG:
         self.cfg = cfg
         with torch.random.fork_rng():  # the initial weights from ``seed``, leaving torch's global stream as it was
             torch.manual_seed(seed)
-            self.actor = SharedActor(obs_dim, act_dim, cfg.hidden, cfg.symmetry, columns)
+            self.actor = SharedActor.of(obs_dim, act_dim, cfg, columns)
             self.critic = PooledCritic(obs_dim, act_dim, cfg.hidden, cfg.embed, cfg.pool_range,
                                        cfg.pool_neighbours)
         self.actor_target, self.critic_target = copy.deepcopy(self.actor), copy.deepcopy(self.critic)

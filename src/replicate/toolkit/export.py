@@ -68,9 +68,7 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
     saved = artifacts.torch_load(actor_path, "general policy")
     try:
         sensors = SensorsConfig(**saved["sensors"])
-        actor = SharedActor(len(saved["columns"]), 2, saved["hidden"], saved.get("symmetry", "none"),
-                            saved["columns"])
-        actor.load_state_dict(saved["actor"])
+        actor = SharedActor.from_checkpoint(saved)
         trained = {"seed": saved["seed"], "selected_episode": saved["selected_episode"]}
     except (KeyError, TypeError, RuntimeError, ValueError) as exc:
         raise CheckpointError(f"{actor_path}: not a complete general policy's actor ({type(exc).__name__}: {exc}); "

@@ -329,7 +329,7 @@ class CoverageEnv:
                 union, credit = self.geometry.union_area(pos, terms.area, marginal=True)
             else:
                 union = credit = self.geometry.union_area(pos, terms.area)
-            return rewards.cr_reward(terms, credit, self.cr), union
+            return rewards.cr_reward(terms, credit, self.cr, pos), union
         return np.zeros(pos.shape[:2]), np.full(self.n_envs, np.nan)
 
     def coverage_fraction(self) -> np.ndarray:

@@ -61,6 +61,9 @@ def overall_reward(cover: np.ndarray, union_term: np.ndarray, c1: float, c2: flo
     return c1 * cover + c2 * union_term
 
 
-def cr_reward(terms: CoverTerms, union_term: np.ndarray, cfg: CRRewardConfig) -> np.ndarray:
-    """CR-MARL per-agent reward Overall_Reward(a) (SPEC §4): eq. (6) over eq. (5). → [E, N]."""
+def cr_reward(terms: CoverTerms, union_term: np.ndarray, cfg: CRRewardConfig, xy: np.ndarray) -> np.ndarray:
+    """CR-MARL per-agent reward Overall_Reward(a) (SPEC §4): eq. (6) over eq. (5). → [E, N].
+
+    ``xy`` [E, N, 2] are the buoys' positions: eq. (5)-(6) read them only through ``terms`` and ``union_term``; a
+    term of the buoys' neighbourhood (the paper's future work, ``CONTRIBUTING.md``) reads them here."""
     return overall_reward(cover_reward(terms, cfg.r1, cfg.r2, cfg.r3), union_term, cfg.c1, cfg.c2)
