@@ -32,3 +32,21 @@ def regions(params):
         name: make_region(name, params.regions[name], params.world.region_area, root=ROOT)
         for name in ("square", "rectangle", "bedok")
     }
+
+
+@pytest.fixture
+def replicate(capsys, monkeypatch):
+    """The ``replicate`` command run in this process from the repository's root, as a user runs it:
+    ``replicate(*argv)`` → (exit code, what it wrote to stderr); what it printed is then ``replicate.out``. A
+    traceback fails the test where it is raised."""
+    from replicate.toolkit.cli import main
+
+    monkeypatch.chdir(ROOT)
+
+    def run(*argv: str) -> tuple[int, str]:
+        code = main(list(argv))
+        printed = capsys.readouterr()
+        run.out = printed.out
+        return code, printed.err
+
+    return run

@@ -25,7 +25,7 @@ from replicate.learn.shared_maddpg import SharedActor
 from replicate.toolkit.export import export_general
 from replicate.world.env import observation_columns
 
-from ..learn.test_training import cli
+from ..command import cli
 
 GAINS = {"naive_tuned": {"gains": {"attraction": 1.0, "avoid_range": 1.0, "avoidance": 1.0, "damping": 1.0}},
          "lloyd_tuned": {"gains": {"gain": 10.0, "damping": 0.5}}}

@@ -120,7 +120,7 @@ def test_a_general_policy_runs_zero_shot_on_a_lake_the_repo_does_not_ship(two_ru
     import geopandas as gpd
     from shapely.geometry import Polygon
 
-    from .test_training import cli
+    from ..command import cli
 
     out, _ = two_runs
     gains = {"naive_tuned": {"gains": {"attraction": 8.0, "avoid_range": 1.0, "avoidance": 10.0, "damping": 0.1}},
@@ -179,7 +179,7 @@ def test_cover_uses_the_general_policy_zero_shot_and_fine_tuned(two_runs, tmp_pa
     import geopandas as gpd
     from shapely.geometry import Polygon
 
-    from .test_training import cli
+    from ..command import cli
 
     out, _ = two_runs
     assert cli("export", str(out / "run0"), "--out", str(tmp_path / "general.pt")).wait(timeout=300) == 0
@@ -254,8 +254,8 @@ def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp
     from replicate.learn.policy import load_policy
     from replicate.pipeline.general import train_design
 
+    from ..command import cli
     from ..conftest import ROOT
-    from .test_training import cli
 
     raw = yaml.safe_load((ROOT / "params.yaml").read_text())
     raw["general"].update(regions=["square"], fleet=[6], lakes=1, lake_fleet=[5, 5], lake_ratio=[1.0, 1.0],

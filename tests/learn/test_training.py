@@ -4,31 +4,24 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import re
-import shlex
-import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
-import shapely
 import torch
 
-from replicate.compare import baselines, evaluate
+from replicate.compare import evaluate
 from replicate.core import artifacts
 from replicate.core.artifacts import CheckpointError, read_text, write_csv
 from replicate.core.params import load_params, run_config
-from replicate.learn import fingerprint, maddpg, regression
+from replicate.learn import fingerprint, regression
 from replicate.learn.maddpg import MADDPG
 from replicate.learn.runs import TRAINING_VERSION, core_seconds, finished_run, run_identity, timed_by
 from replicate.learn.schedules import lr_factor
-from replicate.learn.train import CURVE, Trainer, load_actors, train
+from replicate.learn.train import CURVE, load_actors, train
 from replicate.world.scenario import run_env
 
+from ..command import small_trainer
 from ..conftest import ROOT
 
 REFERENCE = ROOT / "tests" / "reference"
@@ -89,14 +82,6 @@ def test_short_cr_run_learns(params, regions, tmp_path):
     print(f"return/coverage: untrained {result['untrained']}, trained {result['trained']}; random coverage {random}")
     assert result["trained"][0] > 1.5 * result["untrained"][0]
     assert result["trained"][1] > random + 0.1
-
-
-def small_trainer(params, region, out, seed=0, episodes=20, config="tuned", method="cr", **algo_changes):
-    """A short run (or, with lists of seeds and folders, a stack of runs) that learns from its 500th transition."""
-    rc = run_config(params, config, method)
-    algo = dataclasses.replace(rc.algo, n_envs=10, maddpg=dataclasses.replace(rc.algo.maddpg, learning_starts=500,
-                                                                                batch_size=32), **algo_changes)
-    return Trainer(dataclasses.replace(rc, algo=algo), region, episodes, seed, out, 10, progress=False)
 
 
 def test_run_writes_curve_and_actors_and_drops_its_checkpoint(params, regions, tmp_path):
@@ -289,291 +274,3 @@ def test_corrupt_and_mismatched_checkpoints_are_refused(params, regions, tmp_pat
         small_trainer(params, regions["square"], tmp_path / "run").load_checkpoint()
     with pytest.raises(CheckpointError, match="no checkpoint"):
         small_trainer(params, regions["square"], tmp_path / "empty").load_checkpoint()
-
-
-def default_sigint() -> None:
-    """In the child: Ctrl-C as a terminal delivers it. A suite started in the background by a shell without job
-    control (``nohup make test &``) runs with SIGINT ignored, which children inherit; Python then never raises
-    KeyboardInterrupt, and a test of Ctrl-C would see the run finish."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
-def cli(*args, **kw):
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    kw.setdefault("cwd", ROOT)
-    return subprocess.Popen([sys.executable, "-m", "replicate", *args], env=env, preexec_fn=default_sigint, **kw)
-
-
-SMALL = ["--set", "configs.tuned.n_envs=10", "--set", "configs.tuned.maddpg.learning_starts=500",
-         "--set", "configs.tuned.maddpg.batch_size=32"]
-
-
-@pytest.mark.slow
-def test_killed_run_resumes_to_the_same_curve(tmp_path):
-    """Kill a run after its first checkpoints; `--resume RUN` finishes it with the curve of an uninterrupted run."""
-    common = [*SMALL, "--set", "configs.tuned.select_every=20",
-              "train", "--config", "tuned", "--method", "cr", "--region", "square", "--episodes", "80",
-              "--seed", "4", "--checkpoint-every", "10", "--no-progress"]
-    assert cli(*common, "--out", str(tmp_path / "whole")).wait(timeout=600) == 0
-
-    proc = cli(*common, "--out", str(tmp_path / "cut"))
-    wait_for_checkpoint(tmp_path / "cut")
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    cut_rows = len(read_text(tmp_path / "cut" / CURVE).splitlines()) - 1
-    assert 0 < cut_rows < 80, "the run must be cut before its end"
-    refused = cli(*common, "--out", str(tmp_path / "cut"), stderr=subprocess.PIPE, text=True)
-    assert refused.wait(timeout=300) == 2 and f"replicate train --resume {tmp_path / 'cut'}" in refused.stderr.read()
-    assert cli("train", "--resume", str(tmp_path / "cut"), "--no-progress").wait(timeout=600) == 0  # nothing else
-    whole = artifacts.read_curve(tmp_path / "whole" / CURVE)
-    resumed = artifacts.read_curve(tmp_path / "cut" / CURVE)
-    for column in ("team_reward", "coverage", "critic_loss"):
-        np.testing.assert_array_equal(resumed[column], whole[column])
-    assert (tmp_path / "cut" / "validation.csv").read_text() == (tmp_path / "whole" / "validation.csv").read_text()
-    for a, b in zip(load_actors(tmp_path / "cut" / "actors.pt")[0].parameters(),
-                    load_actors(tmp_path / "whole" / "actors.pt")[0].parameters()):
-        torch.testing.assert_close(a, b, rtol=0, atol=0)
-    again = cli("train", "--resume", str(tmp_path / "cut"), stderr=subprocess.PIPE, text=True)
-    assert again.wait(timeout=300) == 2 and "already finished" in again.stderr.read()
-
-
-def wait_for_checkpoint(run: Path, timeout: float = 300) -> None:
-    deadline = time.time() + timeout
-    while time.time() < deadline and not ((run / "checkpoint.pt").exists() and (run / CURVE).exists()
-                                          and (run / CURVE).stat().st_size > 500):
-        time.sleep(0.05)
-
-
-@pytest.mark.slow
-def test_interrupted_run_resumes_with_the_command_it_prints(tmp_path):
-    """Ctrl-C prints the command that continues the run; that command, exactly, finishes it."""
-    out, log = tmp_path / "my run", tmp_path / "stderr.txt"
-    with open(log, "w") as stderr:
-        proc = cli(*SMALL, "train", "--config", "tuned", "--method", "cr", "--region", "square", "--episodes", "400",
-                   "--checkpoint-every", "10", "--no-progress", "--out", str(out), stderr=stderr, text=True)
-        wait_for_checkpoint(out)
-        # 400 episodes outlast the first checkpoints by far. A Ctrl-C that lands while numba compiles a kernel the
-        # run meets for the first time (a fresh clone has no numba cache) can be lost inside the compiler and the
-        # run goes on: as a user would, press it again after a pause, until the run says it was interrupted.
-        for _ in range(20):
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=5)
-                break
-            except subprocess.TimeoutExpired:
-                if "replicate: interrupted" in log.read_text():
-                    break
-        code = proc.wait(timeout=300)
-    err = log.read_text()
-    assert code == 130, err
-    hint = re.search(r"`(replicate train --resume .+?)`", err)
-    assert hint, "the interruption names the command that continues the run"
-    argv = shlex.split(hint.group(1))
-    assert argv[:3] == ["replicate", "train", "--resume"] and Path(argv[3]) == out
-    assert cli(*argv[1:], "--no-progress").wait(timeout=600) == 0
-    assert json.loads((out / "run.json").read_text())["status"] == "finished"
-    assert not list(out.glob(".*.tmp")), "no partial files are left behind"
-
-
-@pytest.mark.slow
-def test_training_into_a_finished_run_leaves_it_unchanged(tmp_path):
-    out = tmp_path / "done"
-    args = [*SMALL, "train", "--config", "tuned", "--method", "sw", "--region", "square", "--episodes", "20",
-            "--no-progress", "--out", str(out)]
-    assert cli(*args).wait(timeout=600) == 0
-    before = {p.name: p.read_bytes() for p in out.iterdir()}
-    refused = cli(*args, "--seed", "3", stderr=subprocess.PIPE, text=True)
-    assert refused.wait(timeout=300) == 2 and "holds a finished run" in refused.stderr.read()
-    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
-    (out / "notes.txt").write_text("mine")
-    assert cli(*args, "--seed", "3", "--force").wait(timeout=600) == 0
-    assert not (out / "notes.txt").exists(), "--force clears the folder first"
-    assert json.loads((out / "run.json").read_text())["seed"] == 3
-    assert {oct(p.stat().st_mode & 0o777) for p in out.iterdir()} == {"0o644"}
-
-
-def test_a_refused_schedule_leaves_no_folder(tmp_path):
-    out = tmp_path / "never"
-    proc = cli("--set", "train.checkpoint_every=0", "train", "--out", str(out), stderr=subprocess.PIPE, text=True)
-    assert proc.wait(timeout=300) == 2 and "checkpoint_every must be at least 1" in proc.stderr.read()
-    proc = cli("--set", "configs.paper.n_envs=0", "train", "--out", str(out), stderr=subprocess.PIPE, text=True)
-    assert proc.wait(timeout=300) == 2 and "n_envs must be at least 1" in proc.stderr.read()
-    assert not out.exists()
-
-
-@pytest.mark.slow
-def test_cli_train_and_evaluate_with_baseline(tmp_path):
-    out = tmp_path / "run"
-    proc = cli(*SMALL, "train", "--config", "tuned", "--method", "sw", "--region", "rectangle", "--episodes", "20",
-               "--out", str(out), "--no-progress", stdout=subprocess.PIPE, text=True)
-    assert proc.wait(timeout=600) == 0
-    assert "in " in proc.stdout.read() and (out / "actors.pt").exists()
-    assert cli("evaluate", "--run", str(out)).wait(timeout=600) == 0
-    assert (out / "metrics.json").exists()
-    target = tmp_path / "naive.json"
-    assert cli("evaluate", "--baseline", "naive", "--region", "rectangle", "--out", str(target)).wait(600) == 0
-    assert target.exists()
-
-
-@pytest.mark.parametrize(
-    "args, message",
-    [
-        (["train", "--region", "atlantis"], "unknown region 'atlantis'"),
-        (["train", "--config", "best"], "unknown config 'best'"),
-        (["--set", "train.epsiodes=3", "train"], "unknown key 'epsiodes'"),
-        (["train", "--episodes", "15"], "must be a multiple of n_envs"),
-        (["evaluate", "--baseline", "oracle", "--region", "square"], "unknown baseline 'oracle'"),
-        (["train", "--resume", "/nonexistent/run"], "no such run folder"),
-        (["train", "--seed", str(2**70), "--out", "/tmp/never-written"], "--seed must be a whole number"),
-        (["train", "--seed", "-1"], "--seed must be a whole number from 0"),
-        (["--set", "coverage.radius=-0.5", "train"], "coverage.radius must be above 0, got -0.5"),
-        (["--set", "world.n_agents=1000", "train"], "world.n_agents must be in [1, 200], got 1000"),
-        (["cover", "--region", "data/bedok_outline.geojson", "--radius-m", "nan", "--out", "/tmp/never-written"],
-         "--radius-m must be a positive number"),
-        (["cover", "--method", "cr", "--region", "data/bedok_outline.geojson", "--episodes", "0", "--out",
-          "/tmp/never-written"],
-         "--episodes must be at least 1"),
-        (["cover", "--region", "data/bedok_outline.geojson", "--n-agents", "1000"], "--n-agents must be between"),
-        (["act", "--policy", "p.pt", "--obs", "1,2;3"], "every row as long"),
-        (["act", "--policy", "p.pt", "--obs", "nan,2;3,4"], "finite numbers"),
-        (["evaluate", "--baseline", "naive", "--region", "square", "--out", "tests"], "is a folder"),
-        (["train", "--out", "README.md"], "is a file, not a folder"),
-    ],
-)
-def test_cli_errors_are_clear(args, message):
-    proc = cli(*args, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    assert proc.wait(timeout=300) == 2
-    err = proc.stderr.read()
-    assert message in err and "Traceback" not in err
-    assert not Path("/tmp/never-written").exists()
-
-
-def test_invalid_yaml_names_the_file_and_line(tmp_path):
-    bad = tmp_path / "params.yaml"
-    bad.write_text("world: [unclosed\n")
-    proc = cli("--params", str(bad), "train", stderr=subprocess.PIPE, text=True)
-    assert proc.wait(timeout=300) == 2
-    err = proc.stderr.read()
-    assert f"{bad}: not valid YAML at line 2" in err and "Traceback" not in err
-
-
-def test_baselines_order_on_square(params, regions):
-    """Lloyd's converged layout is the practical optimum: at most the ceiling, above naive and random."""
-    square = regions["square"]
-    p = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=10))
-    cov = {name: evaluate.evaluate_baseline(name, p, square)["coverage"]["mean"]
-           for name in ("random", "naive", "lloyd_converged")}
-    assert cov["random"] < cov["naive"] < cov["lloyd_converged"] <= 0.7796 + 1e-9
-    assert cov["lloyd_converged"] > 0.76
-    rect = evaluate.evaluate_baseline("naive", p, regions["rectangle"])
-    assert rect["steps"] == params.regions["rectangle"].episode_length == 100  # the region's own T
-    cells = baselines.voronoi_centroids(square.polygon, np.array([[-1.0, 0.0], [1.0, 0.0]]))
-    np.testing.assert_allclose(cells, [[-0.75, 0.0], [0.75, 0.0]], atol=1e-9)
-
-
-def test_voronoi_centroids_of_many_environments_are_each_environments_own(regions):
-    """The batched Lloyd targets [E, N, 2] equal each environment's alone, bit for bit, also for agents far
-    outside the region and for agents at one point."""
-    rng = np.random.default_rng(3)
-    for region in (regions["square"].polygon, regions["bedok"].polygon):
-        xy = rng.uniform(-3, 3, (12, 9, 2))
-        xy[4] = 8.0 + 0.01 * rng.normal(size=(9, 2))  # the whole swarm far outside
-        xy[7, 2] = xy[7, 5]  # two agents at one point
-        batched = baselines.voronoi_centroids(region, xy)
-        assert np.array_equal(batched, np.stack([baselines.voronoi_centroids(region, p) for p in xy]))
-        assert np.isfinite(batched).all()
-
-
-def test_agents_at_one_point_split_its_cell_and_steer_apart(regions):
-    """The shore wall pins buoys to one vertex: GEOS has no diagram of coincident points, so they share their
-    point's cell in wedges, one of whose boundaries points into the water. At a corner of the square, on Bedok's
-    shore and in open water, the group gets at least two different targets (in the square, in the water), every
-    other agent's target is (to the wedges' 1e-6 m) the one of the diagram without the duplicates, and a layout
-    with no shared point is left exactly as it was."""
-    for name in ("square", "bedok"):
-        region = regions[name].polygon
-        shore = np.array(region.exterior.coords[:3])  # two shore vertices and, below, a point of open water
-        for point in (*shore[:2], np.array(shapely.get_coordinates(region.point_on_surface())[0]) + 0.3):
-            others = np.array(shapely.get_coordinates(region.representative_point())) + [[0.05, 0.02], [-0.4, 0.3]]
-            for m in (2, 3, 5):
-                xy = np.vstack([np.repeat(point[None], m, axis=0), others])
-                target = baselines.voronoi_centroids(region, xy)
-                assert np.isfinite(target).all()
-                assert len({tuple(t) for t in target[:m]}) >= 2  # the group breaks up
-                if name == "square":  # a convex lake holds its cells' centroids (Bedok's arms need not)
-                    assert (shapely.distance(region, shapely.points(target)) < 1e-9).all()
-                alone = baselines.voronoi_centroids(region, np.vstack([point, others]))
-                np.testing.assert_allclose(target[m:], alone[1:], atol=1e-5)
-    xy = np.random.default_rng(0).uniform(-1.5, 1.5, (4, 9, 2))
-    assert np.array_equal(baselines.separate_coincident(xy, regions["square"].polygon), xy)
-    corner = np.array([[1.5, -1.5], [1.5, -1.5 + 1e-15], [0.0, 0.0]])  # 1e-15 apart: GEOS fails as on one point
-    assert np.isfinite(baselines.voronoi_centroids(regions["square"].polygon, corner)).all()
-
-
-def test_naive_interior_falls_back_to_the_middle_of_a_lake_too_shallow_for_a_coverage_polygon():
-    """Naive swarming's target is Reg ⊖ Cov; a lake whose deepest point is closer to the shore than R has none,
-    and its target is then the water at least half that depth from the shore: non-empty, inside, off the shore."""
-    from shapely.geometry import box
-
-    square = box(-1.5, -1.5, 1.5, 1.5)
-    assert baselines.interior(square, square.buffer(-0.5)).equals(square.buffer(-0.5))
-    narrow = box(0.0, 0.0, 9.0, 0.8)  # deepest point 0.4 m from the shore, R = 0.5 m
-    eroded = narrow.buffer(-0.5)
-    assert eroded.is_empty
-    middle = baselines.interior(narrow, eroded)
-    assert not middle.is_empty and narrow.contains(middle)
-    assert middle.exterior.distance(narrow.exterior) == pytest.approx(0.2)
-
-
-def test_the_arithmetic_fingerprint_names_the_numbers_not_the_code(monkeypatch):
-    """The fingerprint is the same on every call, and changes with a change of the computed numbers in either half
-    of training: the world's geometry (a coarser union raster) and the update (one matmul form rounded through
-    float64)."""
-    first = fingerprint.fingerprint()
-    fingerprint.fingerprint.cache_clear()
-    assert fingerprint.fingerprint() == first and len(first) == 16
-    changed = []
-    with monkeypatch.context() as m:
-        m.setattr(fingerprint, "COVERAGE", dataclasses.replace(fingerprint.COVERAGE, raster_spacing=0.02))
-        fingerprint.fingerprint.cache_clear()
-        changed.append(fingerprint.fingerprint())
-    with monkeypatch.context() as m:
-        m.setattr(maddpg, "stacked_matmul", lambda a, b: torch.bmm(a.double(), b.double()).float())
-        fingerprint.fingerprint.cache_clear()
-        changed.append(fingerprint.fingerprint())
-    fingerprint.fingerprint.cache_clear()
-    assert fingerprint.fingerprint() == first
-    assert first not in changed and len(set(changed)) == 2
-
-
-def test_the_general_and_search_fingerprints_name_their_own_numbers(monkeypatch):
-    """The general policy's fingerprint changes with its learner's arithmetic (one layer's matmul rounded through
-    float64) and the per-region one does not; a study's changes with TPE's arithmetic (its inverse CDF rounded
-    through float32); each is stable and the three differ."""
-    from replicate.learn import shared_maddpg
-
-    general, search, regions = (fingerprint.general_fingerprint(), fingerprint.search_fingerprint(),
-                                fingerprint.fingerprint())
-    assert len({general, search, regions}) == 3
-    for fp in (fingerprint.general_fingerprint, fingerprint.search_fingerprint):
-        fp.cache_clear()
-    assert (fingerprint.general_fingerprint(), fingerprint.search_fingerprint()) == (general, search)
-
-    class RoundedLinear(torch.nn.Linear):
-        def forward(self, x):
-            return torch.nn.functional.linear(x.double(), self.weight.double(), self.bias.double()).float()
-
-    with monkeypatch.context() as m:
-        m.setattr(shared_maddpg.nn, "Linear", RoundedLinear)
-        fingerprint.general_fingerprint.cache_clear()
-        fingerprint.fingerprint.cache_clear()
-        assert fingerprint.general_fingerprint() != general and fingerprint.fingerprint() == regions
-    with monkeypatch.context() as m:
-        from optuna.samplers._tpe import _truncnorm
-
-        ppf = _truncnorm.ppf  # TPE's inverse CDF, which turns its uniform draws into proposals
-        m.setattr(_truncnorm, "ppf", lambda q, a, b: ppf(q, a, b).astype(np.float32).astype(np.float64))
-        fingerprint.search_fingerprint.cache_clear()
-        assert fingerprint.search_fingerprint() != search
-    for fp in (fingerprint.general_fingerprint, fingerprint.search_fingerprint, fingerprint.fingerprint):
-        fp.cache_clear()

@@ -51,7 +51,8 @@ def stage_sources(notebook: Path) -> list[str]:
     for m in list(modules):
         modules |= graph().find_upstream_modules(m)
     files = {module_file(m) for m in modules}
-    return sorted(str(f.relative_to(ROOT)) for f in files if f.name != "__init__.py")
+    templates = {t for f in files for t in f.parent.glob("*.j2")}  # read by the modules beside them
+    return sorted(str(f.relative_to(ROOT)) for f in files | templates if f.name != "__init__.py")
 
 
 def stages() -> dict[str, dict]:
@@ -63,7 +64,7 @@ def stage_notebook(stage: dict) -> Path:
 
 
 def listed_sources(stage: dict) -> list[str]:
-    return sorted(d for d in stage["deps"] if d.startswith("src/replicate/") and d.endswith(".py"))
+    return sorted(d for d in stage["deps"] if d.startswith("src/replicate/") and d.endswith((".py", ".j2")))
 
 
 if __name__ == "__main__":

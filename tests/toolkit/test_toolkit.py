@@ -21,8 +21,8 @@ from replicate.toolkit.animate import animate_run
 from replicate.toolkit.export import act, export_policy
 from replicate.world.coverage import coverage_ceiling
 
+from ..command import SMALL, cli, small_trainer
 from ..conftest import ROOT
-from ..learn.test_training import SMALL, cli, small_trainer
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +62,7 @@ def test_exported_policy_equals_training_actor(small_run, regions, tmp_path):
         load_policy(tmp_path / "broken.pt")
 
 
-def test_act_command_with_real_coordinates(small_run, regions, tmp_path):
+def test_act_command_with_real_coordinates(small_run, regions, tmp_path, replicate):
     bedok_like = dataclasses.replace(regions["square"], scale=300.0, offset=(380000.0, 148000.0),
                                      utm_crs="EPSG:32648")
     export_policy(small_run / "actors.pt", bedok_like, tmp_path / "policy.pt")
@@ -74,10 +74,10 @@ def test_act_command_with_real_coordinates(small_run, regions, tmp_path):
     real[:, :2] = np.array([380000.0, 148000.0]) + 300.0 * sim[:, :2]
     real[:, 2:] = 300.0 * sim[:, 2:]
     (tmp_path / "obs.json").write_text(json.dumps(real.tolist()))
-    proc = cli("act", "--policy", str(tmp_path / "policy.pt"), "--obs-file", str(tmp_path / "obs.json"), "--real",
-               stdout=subprocess.PIPE, text=True)
-    assert proc.wait(timeout=300) == 0
-    got = json.loads(proc.stdout.read())
+    code = replicate("act", "--policy", str(tmp_path / "policy.pt"), "--obs-file", str(tmp_path / "obs.json"),
+                     "--real")[0]
+    assert code == 0
+    got = json.loads(replicate.out)
     np.testing.assert_allclose([got[f"buoy_{i}"] for i in range(9)], act(tmp_path / "policy.pt", sim), atol=1e-5)
 
 
@@ -121,10 +121,11 @@ def test_one_cli_shape_for_every_verb(small_run, tmp_path):
             assert "(default: 0)" in text and "episodes" in text, verb
 
 
-def test_animation_has_one_frame_per_step(small_run, params, regions, tmp_path):
-    gif = animate_run(small_run, small_params(), regions["square"], tmp_path / "episode.gif")
+def test_animation_has_one_frame_per_step(small_run, regions, tmp_path):
+    short = dataclasses.replace(small_params(), world=dataclasses.replace(small_params().world, episode_length=12))
+    gif = animate_run(small_run, short, regions["square"], tmp_path / "episode.gif")
     with Image.open(gif) as im:
-        assert im.n_frames == params.world.episode_length + 1
+        assert im.n_frames == 12 + 1
     assert not list(tmp_path.glob(".*.gif"))
 
 
@@ -155,11 +156,9 @@ def test_cover_a_lake_the_repo_does_not_ship(tmp_path):
     assert export.wait(timeout=300) == 0, export.stderr.read()
 
 
-def test_cover_place_offline_names_the_alternative(tmp_path):
-    proc = cli("cover", "--place", "Bedok Reservoir, Singapore", "--out", str(tmp_path / "o"),
-               stderr=subprocess.PIPE, text=True)
-    assert proc.wait(timeout=300) == 2
-    assert "--region FILE" in proc.stderr.read()
+def test_cover_place_offline_names_the_alternative(tmp_path, replicate):
+    code, err = replicate("cover", "--place", "Bedok Reservoir, Singapore", "--out", str(tmp_path / "o"))
+    assert code == 2 and "--region FILE" in err
 
 
 @pytest.mark.slow
@@ -174,17 +173,17 @@ def test_every_verb_works_from_any_folder(tmp_path):
     cover = cli("--set", "evaluate.episodes=4", "cover", "--region", "lake.geojson", "--no-progress", cwd=tmp_path,
                 stderr=subprocess.PIPE, text=True)  # the general policy installed with the package
     assert cover.wait(timeout=600) == 0, cover.stderr.read()
-    summary = json.loads((tmp_path / "runs" / "cover" / "summary.json").read_text())
+    summary = json.loads((tmp_path / "my-runs" / "cover" / "summary.json").read_text())  # the default --out
     assert summary["policy"].endswith("general.pt") and summary["max_outside_m"] == 0.0
 
 
-def test_init_writes_the_defaults_once(tmp_path):
-    assert cli("init", str(tmp_path / "mine")).wait(timeout=300) == 0
+def test_init_writes_the_defaults_once(tmp_path, replicate):
+    assert replicate("init", str(tmp_path / "mine"))[0] == 0
     written = tmp_path / "mine" / "params.yaml"
     assert written.read_text() == (ROOT / "params.yaml").read_text()
     assert load_params(written).train.episodes == load_params(ROOT / "params.yaml").train.episodes
-    again = cli("init", str(tmp_path / "mine"), stderr=subprocess.PIPE, text=True)
-    assert again.wait(timeout=300) == 2 and "--force" in again.stderr.read()
+    code, err = replicate("init", str(tmp_path / "mine"))
+    assert code == 2 and "--force" in err
 
 
 def test_built_package_carries_the_defaults(tmp_path):

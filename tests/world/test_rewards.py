@@ -85,7 +85,7 @@ def test_overall_reward_eq6(params):
         distance=np.zeros((1, 2)),
     )
     union = np.array([0.9])
-    r = rewards.cr_reward(terms, union, params.cr_reward)
+    r = rewards.cr_reward(terms, union, params.cr_reward, np.zeros((1, 2, 2)))  # eq. (5)-(6) read no position
     np.testing.assert_allclose(r, [[1 * (30 + 0.2) + 5 * 0.9, 1 * (60 + 0.78) + 5 * 0.9]])
     # a per-agent union credit (difference reward) broadcasts per agent
     r = rewards.overall_reward(np.array([[1.0, 2.0]]), np.array([[0.1, 0.3]]), 1.0, 5.0)

@@ -15,16 +15,21 @@ import numpy as np
 import torch
 
 from replicate.compare import baselines, metrics
+from replicate.compare.best_layout import best_coverage
+from replicate.compare.stats import mean_interval
 from replicate.core import artifacts
 from replicate.core.params import Params, RunConfig, run_config
 from replicate.core.schema import ConfigError
+from replicate.core.sections import SensorsConfig
 from replicate.core.studies import LloydConfig, NaiveConfig, StartsConfig
+from replicate.learn.policy import load_policy
 from replicate.learn.runs import core_seconds
 from replicate.learn.train import CURVE, load_actors
 from replicate.world import coverage
 from replicate.world.env import CoverageEnv
 from replicate.world.regions import Region
-from replicate.world.scenario import evaluation_env, general_evaluation_env
+from replicate.world.scenario import evaluation_env, general_evaluation_env, horizon
+from replicate.world.shore import distance_outside
 
 # the paper's comparisons with hand-set gains and the same heuristics with gains tuned by ``tuning.py``, in the
 # order the evaluate stage starts them: costliest first (the converged Lloyd layouts run 500 steps)
@@ -239,14 +244,9 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     the general policy) are run on the same episodes, each under ``"seeds"`` with its ``coverage`` and
     ``max_outside_m``; the baselines run once for all. ``geodesic``, ``naive`` and ``best_layout`` False leave
     that comparison out (its ratio is then None); Lloyd always runs."""
-    from replicate.compare.best_layout import best_coverage
-    from replicate.compare.stats import mean_interval
-    from replicate.core.sections import SensorsConfig
-    from replicate.world.scenario import horizon
-    from replicate.world.shore import distance_outside
 
-    module, meta = general_policy(policy_path)
-    others = {label: general_policy(path) for label, path in (seeds or {}).items()}
+    module, meta = read_general_policy(policy_path)
+    others = {label: read_general_policy(path) for label, path in (seeds or {}).items()}
     ev = params.evaluate
     steps = horizon(params.general, region, params.world.region_area)
 
@@ -297,18 +297,16 @@ def general_episode(policy_path: str | Path, region: Region, params: Params, n_a
                     seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One episode of a general policy as ``evaluate_policy`` runs it (the wall, its sensors, the event) for
     the figures: positions [T + 1, N, 2] and the buoys in service [T + 1, N]."""
-    from replicate.core.sections import SensorsConfig
 
-    module, meta = general_policy(policy_path)
+    module, meta = read_general_policy(policy_path)
     env, steps = general_evaluation_env(params, region, n_agents, 1, SensorsConfig(**meta["sensor_config"]), current)
     seed = params.evaluate.seed if seed is None else seed
     trace = rollout(env, fleet_policy(module), steps, seed, StartsConfig(start=start, lose=lose))
     return trace["positions"][:, 0], trace["alive"][:, 0]
 
 
-def general_policy(path: str | Path):
+def read_general_policy(path: str | Path):
     """(module, metadata) of a general policy file, refused by name when it is another kind of policy."""
-    from replicate.learn.policy import load_policy
 
     if Path(path).name == "actor.pt":
         raise ConfigError(f"{path}: a general run's actor; export it first (`replicate export RUN`) and give "

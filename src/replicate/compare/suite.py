@@ -14,6 +14,7 @@ from shapely import affinity
 
 from replicate.world.lakes import held_out
 from replicate.world.regions import Region, make_region
+from replicate.world.scenario import named_lakes
 
 
 @dataclass(frozen=True)
@@ -31,7 +32,6 @@ def suite_lakes(params) -> dict[str, tuple[Region, int]]:
     """The suite's lakes → (region, the fleet it is drawn for): every region of ``regions`` (the square, the
     rectangle and Bedok) for the paper's 9 buoys, then ``general.suite.held_out`` lakes of ``lakes.held_out`` for
     their own N."""
-    from replicate.world.scenario import named_lakes
 
     named = {name: (make_region(name, params.regions[name], params.world.region_area), params.world.n_agents)
              for name in params.regions}

@@ -30,17 +30,20 @@ from pathlib import Path
 import numpy as np
 
 from replicate.compare import baselines
+from replicate.compare.evaluate import actor_policy, rollout
 from replicate.core.executor import map_jobs, parallel_slots
-from replicate.core.params import Params, run_config, with_values
+from replicate.core.params import Params, RegionKey, run_config, with_values
 from replicate.core.schema import to_dict
 from replicate.core.studies import Dimension, LloydConfig, NaiveConfig, StartsConfig
 from replicate.learn.fingerprint import search_fingerprint
 from replicate.learn.process import training_process
 from replicate.learn.runs import TRAINING_VERSION
+from replicate.learn.train import load_actors, train_runs
+from replicate.learn.training_worlds import baseline_worlds
 from replicate.world import coverage
 from replicate.world.geometry import region_key
 from replicate.world.regions import Region
-from replicate.world.scenario import evaluation_env, general_env
+from replicate.world.scenario import evaluation_env, general_env, horizon
 
 BASELINE_KINDS = ("naive", "lloyd")
 
@@ -148,7 +151,7 @@ def budget(study) -> dict:
 
 
 # ---- baselines -------------------------------------------------------------------------------------------
-def baseline_policy(kind: str, gains: dict, params: Params) -> baselines.Policy:
+def policy_with_gains(kind: str, gains: dict, params: Params) -> baselines.Policy:
     if kind == "naive":
         return baselines.naive_swarming(NaiveConfig(**gains))
     return baselines.lloyd(LloydConfig(**gains, converged_steps=params.evaluate.lloyd.converged_steps))
@@ -160,7 +163,7 @@ def baseline_coverage(kind: str, gains: dict, params: Params, region: Region, se
     rc = run_config(params, "paper", "cr", region.name)
     env = evaluation_env(region, rc, episodes)
     env.reset(seed)
-    policy = baseline_policy(kind, gains, params)
+    policy = policy_with_gains(kind, gains, params)
     for _ in range(rc.world.episode_length):
         env.step(policy(env))
     return float(coverage.coverage_fraction(region.polygon, env.pos, rc.coverage.radius, rc.coverage.edges).mean())
@@ -188,7 +191,7 @@ def tune_baseline(params: Params, region: Region, kind: str, executor: str = "lo
 
 def tune_baselines(params: Params, regions: dict[str, Region], executor: str = "local") -> dict:
     """Every baseline kind on every region → ``{"KIND/REGION": tune_baseline(...)}``."""
-    return {f"{kind}/{name}": tune_baseline(params, region, kind, executor)
+    return {RegionKey(kind, name).key: tune_baseline(params, region, kind, executor)
             for kind in BASELINE_KINDS for name, region in regions.items()}
 
 
@@ -199,7 +202,6 @@ _GENERAL_WORLDS: dict[str, list] = {}
 def general_worlds(params: Params) -> list:
     """(region, world env) of every world of ``worlds.baseline_worlds``, behind the wall, with half the
     study's starts as environments; built once per process and setting (a lake's geometry takes seconds)."""
-    from replicate.learn.training_worlds import baseline_worlds
 
     gc, starts = params.general, params.tuning.general_baselines.starts
     key = study_name("worlds", gc, params.world, params.coverage, params.regions, starts)
@@ -212,10 +214,8 @@ def general_worlds(params: Params) -> list:
 def general_baseline_coverage(kind: str, params: Params, gains: dict) -> float:
     """Mean exact coverage at each world's evaluation horizon over every training world, half of the episodes
     released in the corner patch and half scattered, starts drawn from ``tuning.starts_seed``."""
-    from replicate.compare.evaluate import rollout
-    from replicate.world.scenario import horizon
 
-    policy, scores = baseline_policy(kind, gains, params), []
+    policy, scores = policy_with_gains(kind, gains, params), []
     for k, (region, env) in enumerate(general_worlds(params)):
         steps = horizon(params.general, region, params.world.region_area)
         for start in ("corner", "random"):
@@ -248,7 +248,6 @@ def tune_general_baselines(params: Params, executor: str = "local", workers: int
 
 def general_study(params: Params, kind: str, executor: str = "local") -> dict:
     """One baseline's study of ``tune_general_baselines``, completed (or read back) → its result."""
-    from replicate.learn.training_worlds import baseline_worlds
 
     tc, gb = params.tuning, params.tuning.general_baselines
     worlds = [(region_key(region.polygon), n) for region, n in baseline_worlds(params, params.general)]
@@ -287,8 +286,6 @@ def incumbent_values(params: Params) -> dict:
 def method_trial(params: Params, region: Region, values: dict, workdir: Path) -> float:
     """Train ``tuning.method``'s config and method with ``values`` on the tuning seeds (one stack), and score
     the kept actors (selected on their own validation starts, as the reported runs are) on the tuning starts."""
-    from replicate.compare.evaluate import actor_policy, rollout
-    from replicate.learn.train import load_actors, train_runs
 
     ms, tc = params.tuning.method, params.tuning
     rc = search_base(params, region.name)

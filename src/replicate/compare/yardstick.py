@@ -22,12 +22,17 @@ from pathlib import Path
 import numpy as np
 
 from replicate.compare import stats
+from replicate.compare.evaluate import evaluate_policy, lloyd_name, read_general_policy
+from replicate.compare.suite import at_density, suite_event
 from replicate.core.artifacts import CheckpointError
 from replicate.core.executor import map_jobs
 from replicate.core.params import Params, load_params
 from replicate.core.schema import ConfigError
+from replicate.learn.process import training_process
+from replicate.learn.runs import SEED_POLICY, finished_general, general_identity, seed_folder
 from replicate.world.lakes import design
 from replicate.world.regions import Region
+from replicate.world.scenario import named_lakes
 
 
 @dataclass(frozen=True)
@@ -70,7 +75,6 @@ class Versions:
 
 def design_lakes(params: Params) -> dict[str, tuple[Region, int]]:
     """The yardstick's lakes → (region, the fleet it is drawn for)."""
-    from replicate.world.scenario import named_lakes
 
     return named_lakes(params, design(params.design.lakes))
 
@@ -87,7 +91,6 @@ def standing_baseline(params: Params, folder: Path) -> tuple[str, ...]:
     general training's current values on ``design.seeds``), refused by name when it is missing, unreadable, of
     other seeds than ``design.seeds`` or trained with other values than ``params`` (its runs' identities must
     match: a stale baseline would credit or blame the candidate for every change made since)."""
-    from replicate.learn.runs import SEED_POLICY, finished_general, general_identity, seed_folder
 
     retrain = "`dvc repro train_design` trains it again, or give --baseline"
     summary = folder / "summary.json"
@@ -118,7 +121,6 @@ def check_versions(versions: Versions, min_seeds: int) -> None:
     """Refuse, by name, what cannot give a seed-level interval or a common yardstick: fewer than ``min_seeds``
     seeds a version, a missing or non-general policy file, one file on both sides, a policy without the tuned
     baselines' gains, policies carrying different gains (their Lloyd would differ)."""
-    from replicate.compare.evaluate import general_policy
 
     for side in SIDES:
         if len(getattr(versions, side)) < min_seeds:
@@ -134,7 +136,7 @@ def check_versions(versions: Versions, min_seeds: int) -> None:
         if not Path(path).is_file():
             raise ConfigError(f"{option} {path}: no such file; export each seed's run with `replicate export`")
         try:
-            meta = general_policy(path)[1]
+            meta = read_general_policy(path)[1]
         except (ConfigError, CheckpointError) as exc:
             raise ConfigError(f"{option} {path}: not an exported general policy ({exc})") from None
         if not meta.get("baseline_gains"):
@@ -149,11 +151,8 @@ def check_versions(versions: Versions, min_seeds: int) -> None:
                           "standing baseline in design/ is exported again by `dvc repro train_design`)")
 
 
-def _evaluate_lake(job: dict) -> list[dict]:
+def _yardstick_lake(job: dict) -> list[dict]:
     """Every cell of one lake (a job of ``compare_versions``): every policy and Lloyd on the same episodes."""
-    from replicate.compare.evaluate import evaluate_policy, lloyd_name
-    from replicate.compare.suite import at_density, suite_event
-    from replicate.learn.process import training_process
 
     training_process()
     params = load_params(job["params"], job["overrides"])
@@ -218,7 +217,7 @@ def compare_versions(params_path: str, versions: Versions, workers: int = 1, exe
     jobs = [{"params": params_path, "overrides": overrides or {}, "lake": lake, "policies": policies,
              "cells": [dataclasses.asdict(c) for c in cells if c.lake == lake]}
             for lake in dict.fromkeys(c.lake for c in cells)]
-    rows = [row for lake_rows in map_jobs(_evaluate_lake, jobs, executor, workers) for row in lake_rows]
+    rows = [row for lake_rows in map_jobs(_yardstick_lake, jobs, executor, workers) for row in lake_rows]
     scores = seed_scores(rows, list(policies))
     by_event = {event: side_means(seed_scores([r for r in rows if r["event"] == event], list(policies)))
                 for event in params.design.events}

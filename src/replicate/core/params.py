@@ -154,6 +154,24 @@ class Cell:
         return cls(config, method, region)
 
 
+@dataclass(frozen=True, order=True)
+class RegionKey:
+    """A result on one region that is not a training cell, keyed ``WHAT/REGION`` in ``metrics/summary.json`` and the
+    studies: a baseline (``lloyd_tuned/bedok``), an ablation change, a tuned baseline's study."""
+
+    what: str
+    region: str
+
+    @property
+    def key(self) -> str:
+        return f"{self.what}/{self.region}"
+
+    @classmethod
+    def parse(cls, key: str) -> RegionKey:
+        what, region = key.split("/")
+        return cls(what, region)
+
+
 @section
 class RunConfig:
     """What one training run needs: the shared world plus one config x method."""

@@ -44,7 +44,9 @@ from replicate.core.sections import (
     WorldConfig,
 )
 from replicate.learn.maddpg import MADDPG
-from replicate.learn.replay import ReplayBuffer
+from replicate.learn.policy import FleetPolicy
+from replicate.learn.replay import FleetBatch, ReplayBuffer
+from replicate.learn.shared_maddpg import SharedMADDPG
 from replicate.world.coverage import cover_area
 from replicate.world.currents import random_current
 from replicate.world.env import CoverageEnv
@@ -123,9 +125,6 @@ def _general_world_numbers(digest) -> None:
 def _shared_update_numbers(digest) -> None:
     """Two updates of the shared actor and pooled critic on random fleets of 5-12 buoys padded to 12 (the observation
     of ``SENSORS``): every parameter after them, and the exported policy's actions."""
-    from replicate.learn.policy import FleetPolicy
-    from replicate.learn.replay import FleetBatch
-    from replicate.learn.shared_maddpg import SharedMADDPG
 
     g = torch.Generator().manual_seed(4)
     od, b, n_max = 22, 256, 12

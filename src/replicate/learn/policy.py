@@ -36,8 +36,12 @@ class SwarmPolicy(nn.Module):
         x = x.transpose(0, 1)  # [N, B, obs_dim]
         x = torch.relu(torch.baddbmm(self.b0, x, self.w0))
         x = torch.relu(torch.baddbmm(self.b1, x, self.w1))
-        # the 64 → 2 layer as the training actor computes it (maddpg.stacked_matmul): same bits
-        a = torch.tanh(torch.bmm(x, self.w2) + self.b2).transpose(0, 1)
+        # the 64 → 2 layer as the training actor computes it (``maddpg.stacked_matmul``: column by column, as
+        # row-vector products), so that the exported actions are the training actor's bit for bit on any CPU
+        # (one ``bmm`` gave the same bits on an AVX-512 CPU and differed in the last bit on another)
+        xt = x.transpose(1, 2)
+        columns = [torch.bmm(self.w2[:, :, j:j + 1].transpose(1, 2), xt) for j in range(self.w2.shape[2])]
+        a = torch.tanh(torch.cat(columns, dim=1).transpose(1, 2) + self.b2).transpose(0, 1)
         return a.squeeze(0) if squeeze else a
 
 

@@ -18,6 +18,7 @@ import numpy as np
 from replicate.core import artifacts
 from replicate.core.artifacts import read_curve
 from replicate.core.params import Params, load_params, run_config
+from replicate.learn.process import training_process
 from replicate.learn.train import CURVE, train
 from replicate.world.regions import make_region
 
@@ -45,7 +46,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--write", required=True, help="folder to write the reference curves into")
     parser.add_argument("--params", default="params.yaml")
     args = parser.parse_args(argv)
-    from replicate.learn.process import training_process
 
     training_process()
     params = load_params(args.params)

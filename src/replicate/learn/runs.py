@@ -50,7 +50,6 @@ def timed_by(summary: dict) -> str:
 
 def finished_run(out: str | Path, identity: dict) -> dict | None:
     """The summary of a finished run in ``out`` with this identity, else None."""
-    import json
 
     path = Path(out) / "run.json"
     if not (path.exists() and (Path(out) / "actors.pt").exists()):

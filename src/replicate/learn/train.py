@@ -25,7 +25,7 @@ from replicate.core.params import RunConfig
 from replicate.core.schema import ConfigError, to_dict
 from replicate.learn import run_stack
 from replicate.learn.fingerprint import fingerprint
-from replicate.learn.maddpg import MADDPG
+from replicate.learn.maddpg import MADDPG, BatchedMLP
 from replicate.learn.replay import Batch, NStepWriter, ReplayBuffer
 from replicate.learn.runs import run_identity
 from replicate.learn.schedules import lr_factor, noise_sigma
@@ -385,7 +385,6 @@ def train(
 
 def load_actors(path: str | Path):
     """(actor network [N stacked], metadata) from an ``actors.pt`` written by a run."""
-    from replicate.learn.maddpg import BatchedMLP
 
     state = artifacts.torch_load(path, "actors file")
     try:

@@ -12,7 +12,8 @@ from replicate.compare.evaluate import BASELINES, evaluate_baseline, evaluate_ru
 from replicate.core import artifacts
 from replicate.core.artifacts import read_curve
 from replicate.core.executor import map_jobs
-from replicate.core.params import Cell, Params, ablated_name, load_params, run_config, selection_only
+from replicate.core.params import Cell, Params, RegionKey, ablated_name, load_params, run_config, selection_only
+from replicate.learn.runs import finished_run, run_identity
 from replicate.learn.train import CURVE
 from replicate.pipeline.matrix import cell_seeds
 from replicate.world.regions import make_region
@@ -72,7 +73,8 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
     # the baselines first: the converged Lloyd layouts (500 steps of 100 episodes) are the longest jobs, and
     # started last they kept one process busy while the other idled
     jobs = [{"params": params_path, "baseline": name, "region": region,
-             "tuned": tuned.get(f"{name.removesuffix('_tuned')}/{region}") if name.endswith("_tuned") else None,
+             "tuned": tuned.get(RegionKey(name.removesuffix("_tuned"), region).key)
+             if name.endswith("_tuned") else None,
              "out": str(metrics_dir / "baselines" / f"{name}-{region}.json")}
             for name in BASELINES for region in regions] + jobs
     results = dict(map_jobs(_evaluate_one, jobs, executor, workers))
@@ -87,7 +89,6 @@ def not_in_matrix(params: Params, ident: dict, run: Path, regions: dict) -> str 
     """Why the finished run ``run`` (its ``run.json`` is ``ident``) is not one the pipeline reports, or None: its
     config and seed must be in the matrix (``train.seeds``, ``ablation.seeds``), and its identity (code version,
     settings, region, episodes) the one params.yaml gives now. ``regions``: name → Region, built once."""
-    from replicate.learn.runs import finished_run, run_identity
 
     config = ident.get("config")
     if config not in params.all_configs():
@@ -121,7 +122,7 @@ def split_ablation(summary: dict, params: Params) -> dict:
                 continue
             with_ = [c for s, c in zip(base["seeds"], base["coverage_per_seed"]) if s in ab.seeds]
             without = derived["coverage_per_seed"]
-            rows[f"{change}/{region}"] = {
+            rows[RegionKey(change, region).key] = {
                 "keys": list(keys),
                 "with": stats.mean_interval(with_, boot),
                 "without": stats.mean_interval(without, boot),
@@ -141,7 +142,7 @@ def summarise_metrics(results, boot: stats.Bootstrap = stats.DEFAULT) -> dict:
         if r["kind"] == "run":
             groups.setdefault(Cell(r["config"], r["method"], r["region"]).key, []).append(r)
         else:
-            baselines[f"{r['baseline']}/{r['region']}"] = {
+            baselines[RegionKey(r['baseline'], r['region']).key] = {
                 "coverage": r["coverage"]["mean"],
                 "nearest_neighbour": r["nearest_neighbour"]["mean"],
                 "fraction_inside": r["fraction_inside"]["mean"],

@@ -10,18 +10,20 @@ from pathlib import Path
 
 import numpy as np
 
-from replicate.compare.evaluate import BASELINES
+from replicate.compare.evaluate import BASELINES, general_episode, lloyd_name
+from replicate.compare.suite import at_density, suite_lakes, suite_lose
 from replicate.core.artifacts import read_curve
-from replicate.core.params import load_params
+from replicate.core.params import RegionKey, load_params
 from replicate.learn.runs import KEPT_POLICY
 from replicate.learn.train import CURVE
 from replicate.pipeline.evaluation import not_in_matrix
 from replicate.toolkit import plots
+from replicate.toolkit.animate import animate_run, animate_trace
 from replicate.world.coverage import coverage_ceiling
 from replicate.world.env import start_patch
 from replicate.world.geometry import coverage_fraction_exact
 from replicate.world.osm import describe_source
-from replicate.world.regions import make_region
+from replicate.world.regions import make_region, region_from_file
 
 
 @dataclass
@@ -39,7 +41,8 @@ class Figures:
 
     def baseline_coverage(self, region_name: str, names) -> dict:
         base = self.summary["baselines"]
-        return {b: base[f"{b}/{region_name}"]["coverage"] for b in names if f"{b}/{region_name}" in base}
+        keys = {b: RegionKey(b, region_name).key for b in names}
+        return {b: base[k]["coverage"] for b, k in keys.items() if k in base}
 
     def ceiling(self, region) -> float:
         c = self.params.coverage
@@ -122,7 +125,8 @@ def validation_figures(f: Figures) -> list:
 def ablation_figures(f: Figures) -> list:
     ab, written = f.params.ablation, []
     for region_name in ab.regions:
-        rows = {k.split("/")[0]: v for k, v in f.summary.get("ablation", {}).items() if k.endswith(f"/{region_name}")}
+        rows = {RegionKey.parse(k).what: v for k, v in f.summary.get("ablation", {}).items()
+                if RegionKey.parse(k).region == region_name}
         if rows:
             written.append(plots.ablation(rows, f.baseline_coverage(region_name, ("naive_tuned", "lloyd_tuned")),
                                           f.fig / f"fig_ablation_{region_name}.png",
@@ -135,7 +139,6 @@ def bedok_map_figure(f: Figures, outline_path: str) -> Path:
     """The Bedok outline in lon/lat and in its UTM zone, with its source and licence."""
     import geopandas as gpd
 
-    from replicate.world.regions import region_from_file
 
     outline = region_from_file(outline_path, area=None)
     lonlat = gpd.read_file(outline_path).to_crs("EPSG:4326").geometry.iloc[0]
@@ -149,7 +152,6 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
     """Every figure of SPEC §9, one PNG per panel, for every configuration, and with ``policies_dir`` (the
     ``train_general`` folder; its suite in ``metrics_dir/general.json``) the general policy's; returns the
     paths written."""
-    from replicate.toolkit.animate import animate_run
 
     params = load_params(params_path)
     metrics_dir = Path(metrics_dir)
@@ -175,9 +177,6 @@ def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[P
     (scattered by default; ``fig_general_lakes.png``), and as GIFs through a loss of a share of the fleet at T/2
     (``anim_general_lose.gif``) and through a drift (``anim_general_current.gif``), on Bedok with the paper's
     fleet."""
-    from replicate.compare.evaluate import general_episode, lloyd_name
-    from replicate.compare.suite import at_density, suite_lakes, suite_lose
-    from replicate.toolkit.animate import animate_trace
 
     su, c = params.general.suite, params.coverage
     suite = {(x["region"], x["n_agents"], x["start"], x["event"]): x

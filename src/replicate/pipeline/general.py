@@ -16,6 +16,7 @@ import json
 import time
 from pathlib import Path
 
+from replicate.compare.evaluate import evaluate_policy
 from replicate.compare.suite import SuiteCell, at_density, suite_cells, suite_event, suite_lakes
 from replicate.core import artifacts
 from replicate.core.executor import map_jobs
@@ -97,10 +98,9 @@ def train_design(params_path: str, out_dir: str, gains_path: str | None, workers
     return with_stage_times(summary, runs, wall)
 
 
-def _evaluate_lake(job: dict) -> list[dict]:
+def _suite_lake(job: dict) -> list[dict]:
     """Every cell of one lake and fleet (a job of ``evaluate_general``): every seed's policy and the baselines
     (``evaluate.evaluate_policy``), the best layout computed once per fleet left in service."""
-    from replicate.compare.evaluate import evaluate_policy
 
     training_process()
     params = load_params(job["params"])
@@ -141,7 +141,7 @@ def evaluate_general(params_path: str, policies_dir: str, out: str, workers: int
     jobs = [{"params": params_path, "policies": policies, "region": r, "n_agents": n, "cells": cells}
             for (r, n), cells in sorted(groups.items(), key=lambda kv: -kv[0][1])]  # the largest fleets first
     t0 = time.perf_counter()
-    cells = [c for group in map_jobs(_evaluate_lake, jobs, executor, workers) for c in group]
+    cells = [c for group in map_jobs(_suite_lake, jobs, executor, workers) for c in group]
     result = {"policy": str(Path(policies_dir) / KEPT_POLICY), "seeds": list(policies),
               "wall_seconds": round(time.perf_counter() - t0, 1), "cells": cells}
     artifacts.write_json(out, result)

@@ -27,15 +27,26 @@ from pathlib import Path
 import numpy as np
 from shapely import affinity
 
-from replicate.compare.evaluate import evaluate_baseline, evaluate_run
+from replicate.compare.evaluate import (
+    evaluate_baseline,
+    evaluate_policy,
+    evaluate_run,
+    general_episode,
+    lloyd_name,
+    read_general_policy,
+)
 from replicate.core import artifacts
 from replicate.core.params import Params, run_config
 from replicate.core.schema import ConfigError
+from replicate.core.sections import SensorsConfig
+from replicate.learn.general_train import GeneralTrainer
 from replicate.learn.train import train
 from replicate.toolkit import plots
+from replicate.toolkit.export import export_general
 from replicate.world.env import start_patch
 from replicate.world.osm import OSMUnavailable, outline_from_osm_xml, query_osm
 from replicate.world.regions import Region, RegionError, check_polygon, region_from_file, write_run_region
+from replicate.world.scenario import horizon
 
 
 def outline_file(region: str | None, place: str | None, name: str | None, workdir: Path) -> Path:
@@ -101,13 +112,7 @@ def cover(
                  np.array(method["example"]["trajectory"]),
                  f"coverage {method['coverage']['mean']:.2f}, Lloyd {lloyd['coverage']['mean']:.2f}")
     summary = {
-        "region": region.name,
-        "utm_crs": region.utm_crs,
-        "scale_m_per_sim_m": region.scale,
-        "area_m2": region.area * region.scale**2,
-        "n_agents": params.world.n_agents,
-        "radius_m": c.radius * region.scale,
-        "episode_length": params.world.episode_length,
+        **deployment(region, params, params.world.n_agents, params.world.episode_length),
         "episodes": episodes,
         "coverage": method["coverage"],
         "lloyd_coverage": lloyd["coverage"],
@@ -118,14 +123,19 @@ def cover(
     return summary
 
 
+def deployment(region, params: Params, n_agents: int, steps: int) -> dict:
+    """What a summary says of the deployment: the lake, its CRS and scale, its area, the fleet, the coverage
+    radius in metres, the episode's steps."""
+    return {"region": region.name, "utm_crs": region.utm_crs, "scale_m_per_sim_m": region.scale,
+            "area_m2": region.area * region.scale**2, "n_agents": n_agents,
+            "radius_m": params.coverage.radius * region.scale, "episode_length": steps}
+
+
 def finetuned(policy: Path, module, meta: dict, params: Params, region, steps: int, episodes: int, seed: int,
               out: Path, progress: bool) -> dict:
     """Train the general policy ``policy`` (``module``, ``meta``) on this one lake for ``episodes`` (rounded down to
     ``general.n_envs``) from its own weights, sensors and width, into ``out/finetune``, and export the kept actor
     to ``out/policy.pt`` → the run's summary."""
-    from replicate.core.sections import SensorsConfig
-    from replicate.learn.general_train import GeneralTrainer
-    from replicate.toolkit.export import export_general
 
     gc, weights = params.general, dict(module.state_dict())
     try:
@@ -152,12 +162,10 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
     which is the starting one unless training beats it; written to ``out/finetune`` and ``out/policy.pt``).
     Evaluated from the corner patch with its baselines (``evaluate.evaluate_policy``); ``out/spread.png`` and
     ``out/summary.json``."""
-    from replicate.compare.evaluate import evaluate_policy, general_episode, general_policy, lloyd_name
-    from replicate.world.scenario import horizon
 
     region, params = scaled_setup(path, params, n_agents, radius_m)
     n = params.world.n_agents
-    module, meta = general_policy(policy)
+    module, meta = read_general_policy(policy)
     steps = horizon(params.general, region, params.world.region_area)
     if finetune:
         trained = finetuned(policy, module, meta, params, region, steps, finetune, seed, out, progress)
@@ -172,13 +180,7 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
                  "an evaluation episode", trace,
                  f"coverage {result['coverage']['mean']:.2f}, Lloyd {lloyd_coverage['mean']:.2f}")
     summary = {
-        "region": region.name,
-        "utm_crs": region.utm_crs,
-        "scale_m_per_sim_m": region.scale,
-        "area_m2": region.area * region.scale**2,
-        "n_agents": n,
-        "radius_m": c.radius * region.scale,
-        "episode_length": steps,
+        **deployment(region, params, n, steps),
         "policy": str(policy),
         "finetune_episodes": trained["general"]["episodes"] if finetune else 0,
         "coverage": result["coverage"],

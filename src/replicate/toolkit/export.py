@@ -18,6 +18,7 @@ from replicate.core.artifacts import CheckpointError
 from replicate.core.schema import to_dict
 from replicate.core.sections import SensorsConfig
 from replicate.learn.policy import FleetPolicy, SwarmPolicy, load_policy, save_policy, sensor_config
+from replicate.learn.shared_maddpg import SharedActor
 from replicate.learn.train import load_actors
 from replicate.world.env import observation_columns
 from replicate.world.regions import Region
@@ -63,7 +64,6 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
                    baseline_gains: dict | None = None) -> dict:
     """Write a general policy (``general_train``'s ``actor.pt``) as TorchScript with its metadata, carrying
     ``baseline_gains`` (naive swarming's and Lloyd's, tuned on its training worlds) when given."""
-    from replicate.learn.shared_maddpg import SharedActor
 
     saved = artifacts.torch_load(actor_path, "general policy")
     try:

@@ -18,7 +18,7 @@ from pathlib import Path
 import shapely
 
 from replicate.core import artifacts
-from replicate.world.regions import RegionError, check_polygon
+from replicate.world.regions import RegionError, check_polygon, read_outline
 
 OSM_ATTRIBUTION = "© OpenStreetMap contributors, available under the Open Database Licence (ODbL)"
 
@@ -146,7 +146,6 @@ def fetch_outline(place: str, name: str, tags: dict, timeout: float, fallback: s
 
 def fallback_outline(path: str | Path, name: str, reason: str) -> Outline:
     """The bundled outline (a GeoJSON in lon/lat with an ``attribution`` member)."""
-    from replicate.world.regions import read_outline
 
     path = Path(path)
     geometry, crs, props = read_outline(path)

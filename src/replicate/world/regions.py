@@ -19,6 +19,8 @@ from shapely import affinity
 from shapely.geometry import MultiPolygon, Polygon, box
 from shapely.validation import explain_validity
 
+from replicate.core import artifacts
+
 
 class RegionError(ValueError):
     """The input cannot be turned into a region; the message names the problem."""
@@ -275,7 +277,6 @@ RUN_REGION = "region.json"  # a run's region, written beside its actors: evaluat
 def write_run_region(run: Path, region: Region) -> None:
     """The region a run trains on, into the run folder: its polygon in simulation metres (WKB, exact: WKT rounds)
     and the map transform, so a run trained on a file is evaluated, exported and resumed without the file."""
-    from replicate.core import artifacts
 
     artifacts.write_json(Path(run) / RUN_REGION, {
         "name": region.name, "wkb_hex": shapely.to_wkb(region.polygon, hex=True), "scale": region.scale,

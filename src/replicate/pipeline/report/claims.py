@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from replicate.compare import stats
-from replicate.core.params import Cell
+from replicate.core.params import Cell, RegionKey
 from replicate.core.studies import ReportConfig
 from replicate.pipeline.report.rules import (
     NOT,
@@ -47,7 +47,7 @@ class Judge:
         return self.summary["runs"].get(Cell(self.config, method, region).key)
 
     def baseline(self, name: str, region: str) -> dict:
-        return self.summary["baselines"].get(f"{name}/{region}", {})
+        return self.summary["baselines"].get(RegionKey(name, region).key, {})
 
 
 def claim_convergence(j: Judge) -> list[Claim]:
@@ -175,7 +175,7 @@ def comparisons(summary: dict, regions: list[str], rules: ReportConfig) -> list[
         for region in regions:
             ra = runs.get(Cell(*a, region).key)
             if isinstance(b, str):
-                vb = base.get(f"{b}/{region}", {}).get("coverage")
+                vb = base.get(RegionKey(b, region).key, {}).get("coverage")
             else:
                 rb = runs.get(Cell(*b, region).key)
                 vb = rb["coverage_per_seed"] if rb else None
@@ -212,7 +212,7 @@ def targets(summary: dict, timing: dict, rules: ReportConfig, config: str = "tun
         if r is None or naive is None:
             continue
         if target.of:
-            ref = summary["baselines"][f"{target.of}/{region}"]["coverage"]
+            ref = summary["baselines"][RegionKey(target.of, region).key]["coverage"]
             bar, text = target.at_least * ref, f"≥ {target.at_least:.0%} of {target.of} = {target.at_least * ref:.3f}"
         else:
             bar, text = target.at_least, f"≥ {target.at_least:.2f}"

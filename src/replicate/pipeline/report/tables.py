@@ -4,8 +4,9 @@ still missing, and the arithmetic the runs were trained by."""
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import astuple
 
-from replicate.core.params import Cell
+from replicate.core.params import Cell, RegionKey
 from replicate.pipeline.report.rules import fmt, fmt_delta
 
 
@@ -47,7 +48,7 @@ def robustness_rows(summary: dict, regions: list[str], scenarios: list[str]) -> 
                 rows.append(f"| {region} | {cell.config} {cell.method.upper()}-MARL | "
                             + " | ".join(fmt(r["robustness"][s]["coverage"]) for s in scenarios) + " |")
         for name in ("naive", "naive_tuned", "lloyd", "lloyd_tuned"):
-            b = summary["baselines"].get(f"{name}/{region}", {}).get("robustness")
+            b = summary["baselines"].get(RegionKey(name, region).key, {}).get("robustness")
             if b and set(scenarios) <= set(b):
                 rows.append(f"| {region} | {name} | " + " | ".join(f"{b[s]:.3f}" for s in scenarios) + " |")
     return rows
@@ -63,7 +64,7 @@ def ablation_effect(delta: dict) -> str:
 def ablation_rows(summary: dict) -> list[str]:
     lines = []
     for key, r in summary.get("ablation", {}).items():
-        change, region = key.split("/")
+        change, region = astuple(RegionKey.parse(key))
         keys = ", ".join(f"`{k}`" for k in r["keys"])
         d = r["delta"]
         effect = ablation_effect(d)

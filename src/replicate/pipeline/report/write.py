@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import astuple
 from pathlib import Path
 
 import jinja2
 
 from replicate.core import artifacts
-from replicate.core.params import Cell
+from replicate.core.params import Cell, RegionKey
 from replicate.pipeline.report.claims import claims, comparisons, cpu_timed, sensitivity, targets
 from replicate.pipeline.report.general import general_section
 from replicate.pipeline.report.rules import fmt, span
@@ -66,7 +67,7 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
     rules = params.report
     cells = [Cell.parse(k) for k in summary["runs"]]
     regions = [r for r in params.regions if r in {c.region for c in cells} |
-               {k.split("/")[1] for k in summary["baselines"]}]
+               {RegionKey.parse(k).region for k in summary["baselines"]}]
     context = {
         "episodes": params.evaluate.episodes, "level": f"{rules.level:.0%}", "margin": f"{rules.margin:.3f}",
         "sensitivity": " and × ".join(map(str, rules.sensitivity)), "target_seconds": f"{rules.target_seconds:.0f}",
@@ -80,7 +81,7 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
         "general": general_section(params, general, summary) if general is not None else [],
         "ablation": ablation_rows(summary), "ablation_seeds": ", ".join(map(str, params.ablation.seeds)),
         "runs": [(Cell.parse(key), r) for key, r in summary["runs"].items()],
-        "baselines": [(*key.split("/"), b) for key, b in sorted(summary["baselines"].items())],
+        "baselines": [(*astuple(RegionKey.parse(key)), b) for key, b in sorted(summary["baselines"].items())],
         "training": training_line(timing), "stage_times": stage_times,
         "arithmetic": arithmetic_line(timing["runs"]) if timing else None,
         "figures": [(Path(p).stem, Path(p).as_posix()) for p in figures], "nan": math.nan,

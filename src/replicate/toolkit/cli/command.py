@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
+from importlib.metadata import version
 
 import shapely
 
@@ -44,6 +45,7 @@ class Help(argparse.HelpFormatter):
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="replicate", description=DESCRIPTION, parents=[common_options(False)])
+    parser.add_argument("--version", action="version", version=f"%(prog)s {version('buoy-swarm-coverage')}")
     sub = parser.add_subparsers(dest="command", required=True)
     verb = dict(parents=[common_options(True)], formatter_class=Help)
     regions = "square, rectangle, bedok (params.yaml regions), or a vector file in any CRS"

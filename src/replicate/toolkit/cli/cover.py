@@ -80,9 +80,9 @@ def check_cover_args(args: argparse.Namespace, params: Params) -> None:
             raise ConfigError(f"--finetune must be 0 (zero-shot) or at least general.n_envs ({n_envs}) episodes, "
                               f"got {args.finetune}")
         args.policy = general_policy_file(args.policy)
-        from replicate.compare.evaluate import general_policy
+        from replicate.compare.evaluate import read_general_policy
 
-        general_policy(args.policy)  # refused by name before anything is written
+        read_general_policy(args.policy)  # refused by name before anything is written
     else:
         if args.policy is not None or args.finetune:
             raise ConfigError("--policy and --finetune go with --method general")

@@ -48,11 +48,11 @@ def add(sub, verb: dict, regions: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from replicate.compare.evaluate import evaluate_baseline, evaluate_run
+    from replicate.compare.evaluate import BASELINES, evaluate_baseline, evaluate_run
 
     params = load_params(args.params, overrides(args.set))
     if args.policy is not None:
-        return evaluate_general(args, params)
+        return evaluate_policy_file(args, params)
     given = [flag for flag, value, default in (("--n-agents", args.n_agents, None), ("--starts", args.starts, "corner"),
                                                ("--lose", args.lose, 0), ("--current", args.current, None),
                                                ("--geodesic", args.geodesic, False))
@@ -63,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("give exactly one of a run folder (`replicate evaluate RUN`) or --baseline NAME")
     if args.baseline is not None and not args.region:
         raise ConfigError("--baseline needs --region")
+    if args.baseline is not None and args.baseline not in BASELINES:  # before any folder is made for its result
+        raise ConfigError(f"unknown baseline {args.baseline!r}; known: {list(BASELINES)}")
     region = run_region(args.run, params, args.region) if args.run is not None else \
         resolve_region(args.region, params)
     default = (Path(args.run) / "metrics.json" if args.run is not None
@@ -79,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def evaluate_general(args: argparse.Namespace, params: Params) -> int:
+def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
     """``evaluate --policy``: a general policy on ``--region`` with its fleet, starts and events."""
     from replicate.compare.evaluate import evaluate_policy, lloyd_name
 
@@ -89,9 +91,9 @@ def evaluate_general(args: argparse.Namespace, params: Params) -> int:
         raise ConfigError("--policy needs --region (square, rectangle, bedok or a vector file)")
     if not Path(args.policy).is_file():
         raise ConfigError(f"--policy {args.policy}: no such file; export a general run with `replicate export`")
-    from replicate.compare.evaluate import general_policy
+    from replicate.compare.evaluate import read_general_policy
 
-    general_policy(args.policy)  # refused by name before any work if it is not a general policy
+    read_general_policy(args.policy)  # refused by name before any work if it is not a general policy
     n = params.world.n_agents if args.n_agents is None else args.n_agents
     if not 2 <= n <= MAX_AGENTS:
         raise ConfigError(f"--n-agents must be from 2 to {MAX_AGENTS}, got {n}")

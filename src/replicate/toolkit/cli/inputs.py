@@ -4,6 +4,7 @@ output it will write, claimed (checked writable and not a finished result unless
 from __future__ import annotations
 
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -30,7 +31,8 @@ def resolve_region(name_or_path: str, params: Params) -> Region:
 
 
 def overrides(pairs: list[str] | None) -> dict:
-    """``--set key.path=value`` pairs (values parsed as YAML) → a mapping for ``load_params``."""
+    """``--set key.path=value`` pairs (values parsed as YAML) → a mapping for ``load_params``. A number YAML 1.1
+    reads as a string (``1e-9``: no dot before the exponent) is read as the number it is."""
     import yaml
 
     out = {}
@@ -38,7 +40,10 @@ def overrides(pairs: list[str] | None) -> dict:
         key, sep, value = pair.partition("=")
         if not sep or not key:
             raise ConfigError(f"--set expects KEY=VALUE, got {pair!r}")
-        out[key.strip()] = yaml.safe_load(value)
+        parsed = yaml.safe_load(value)
+        if isinstance(parsed, str) and re.fullmatch(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+", parsed.strip()):
+            parsed = float(parsed)
+        out[key.strip()] = parsed
     return out
 
 
