@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     region = run_region(args.run, params, args.region)
     if args.seed is not None:
         check_seed(args.seed)
-    out = claim_out_file(Path(args.out or Path(args.run) / "episode.gif"), args.force)
+    out = claim_out_file(Path(args.out or Path(args.run) / "episode.gif"), args.force, held=args.held)
     from replicate.toolkit.animate import (
         animate_run,  # matplotlib's import is seconds: only once the inputs are known good
     )

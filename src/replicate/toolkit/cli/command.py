@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
+from contextlib import ExitStack
 from importlib.metadata import version
 
 import shapely
@@ -79,7 +80,9 @@ def main(argv: list[str] | None = None) -> int:
 
         training_process()
     try:
-        return args.func(args)
+        with ExitStack() as held:  # the outputs this command claims (``core.claims``), released however it ends
+            args.held = held
+            return args.func(args)
     except (ConfigError, RegionError, CheckpointError, OSError, ValueError) as exc:
         print(f"replicate: error: {exc}", file=sys.stderr)
         return 2
@@ -109,5 +112,6 @@ def caused_by_ctrl_c(exc: BaseException) -> bool:
 
 def interrupted(args) -> int:
     hint = getattr(args, "interrupted_hint", None)
+    hint = hint() if callable(hint) else hint
     print("replicate: interrupted" + (f"; {hint}" if hint else ""), file=sys.stderr)
     return 130

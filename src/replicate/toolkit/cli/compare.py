@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {args.workers}")
     check_versions(versions, params.design.min_seeds)
-    out = claim_out_file(Path(args.out), args.force)
+    out = claim_out_file(Path(args.out), args.force, held=args.held)
     workers = args.workers or params.stages.get("pipeline", {}).get("workers", 1)
     executor = configured_executor(params, args.executor)
     d = params.design

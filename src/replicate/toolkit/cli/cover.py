@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     params = load_params(args.params, overrides(args.set))
     check_cover_args(args, params)
     out = Path(args.out)
-    created = claim_run_folder(out, args.force)
+    created = claim_run_folder(out, args.force, args.held)
     try:
         s = cover_into(args, params, out, tempfile)
     except BaseException:

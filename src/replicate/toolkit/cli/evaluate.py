@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         resolve_region(args.region, params)
     default = (Path(args.run) / "metrics.json" if args.run is not None
                else Path(f"my-runs/baseline-{args.baseline}-{region.name}.json"))
-    out = claim_out_file(Path(args.out) if args.out else default, args.force)
+    out = claim_out_file(Path(args.out) if args.out else default, args.force, held=args.held)
     if args.run is not None:
         result = evaluate_run(args.run, params, region, progress=True)
     else:
@@ -111,7 +111,7 @@ def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
     s = math.sqrt(n / params.world.n_agents)  # the paper's density for any fleet: 9 buoys on 9 m²
     region = dataclasses.replace(region, polygon=affinity.scale(region.polygon, s, s, origin=(0, 0)),
                                  scale=region.scale / s)
-    out = claim_out_file(Path(args.out or f"my-runs/policy-{region.name}-n{n}.json"), args.force)
+    out = claim_out_file(Path(args.out or f"my-runs/policy-{region.name}-n{n}.json"), args.force, held=args.held)
     result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current,
                              geodesic=args.geodesic)
     artifacts.write_json(out, result)

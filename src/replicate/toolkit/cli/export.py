@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
         if args.region is not None:
             raise ConfigError(f"{args.run}: a general run has no region of its own; export it without --region")
         gains = read_baseline_gains(args.baseline_gains)
-        out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force)
+        out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force, held=args.held)
         export_general(Path(args.run) / "actor.pt", out, params.world.sensitivity, gains)
         print(f"exported the general policy (any fleet, local sensors) to {out}"
               + (f", with the baselines' gains of {args.baseline_gains}" if gains else ""))
@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     if args.baseline_gains is not None:
         raise ConfigError("--baseline-gains goes with a general run; a per-region run has its own baselines")
     region = run_region(args.run, params, args.region)
-    out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force)
+    out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force, held=args.held)
     meta = export_policy(Path(args.run) / "actors.pt", region, out, params.world.sensitivity)
     print(f"exported {meta['n_agents']} actors ({meta['observation']}) for {meta['region']} to {out}")
     return 0

@@ -26,7 +26,7 @@ def run(args: argparse.Namespace) -> int:
 
     if Path(args.dir).exists() and not Path(args.dir).is_dir():
         raise ConfigError(f"{args.dir}: is a file; choose a folder")
-    target = claim_out_file(Path(args.dir) / "params.yaml", args.force, "init")
+    target = claim_out_file(Path(args.dir) / "params.yaml", args.force, "init", held=args.held)
     artifacts.atomic_write_bytes(target, packaged("params.yaml").read_bytes())
     print(f"wrote {target}: every value of the toolkit, commented; edit it and pass --params {target} (or run "
           f"from {args.dir})")

@@ -3,12 +3,15 @@ output it will write, claimed (checked writable and not a finished result unless
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import sys
+from contextlib import ExitStack
 from pathlib import Path
 
 from replicate.core.artifacts import CheckpointError
+from replicate.core.claims import locked, remove, replacing
 from replicate.core.params import Params
 from replicate.core.schema import ConfigError
 from replicate.world.regions import (
@@ -53,9 +56,10 @@ def resume_command(run: Path) -> str:
     return f"replicate train --resume {shlex.quote(str(run))}"
 
 
-def claim_out_file(out: Path, force: bool, option: str = "--out") -> Path:
+def claim_out_file(out: Path, force: bool, option: str = "--out", held: ExitStack | None = None) -> Path:
     """Check an output file before any work: not a folder, in a folder that exists (or can be made) and can be
-    written, and not a finished result unless ``force``."""
+    written, and not a finished result unless ``force`` (then the old file stays until the new one replaces it,
+    written whole). With ``held`` (the command's claims) it is locked for the command: a second writer is refused."""
     out = Path(out)
     if out.is_dir():
         raise ConfigError(f"{option} {out}: is a folder; give the path of a file")
@@ -68,18 +72,20 @@ def claim_out_file(out: Path, force: bool, option: str = "--out") -> Path:
             from None
     if not os.access(out.parent, os.W_OK):
         raise ConfigError(f"{option} {out}: its folder is not writable; choose a writable folder")
+    if held is not None:
+        held.enter_context(locked(out, option))
     return out
 
 
-def claim_run_folder(out: Path, force: bool) -> bool:
+def claim_run_folder(out: Path, force: bool, held: ExitStack | None = None) -> bool:
     """Make ``out`` ready for a new run: refuse a folder that holds a run (finished or interrupted) or anything
-    else, unless ``force``, which clears it first. → whether the folder was created here (so that a run that
-    fails before writing anything can leave no empty folder behind)."""
-    import json
-    import shutil
-
+    else, unless ``force``, which moves it aside until the new run is complete (put back if the command fails or
+    is interrupted). With ``held`` (the command's claims) the folder is locked for the command. → whether the
+    folder was created here (so that a run that fails before writing anything can leave no empty folder behind)."""
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file, not a folder; choose a folder")
+    if held is not None:
+        held.enter_context(locked(out))
     if out.is_dir() and any(out.iterdir()):
         if not force:
             run = out / "run.json"
@@ -92,7 +98,10 @@ def claim_run_folder(out: Path, force: bool) -> bool:
                                   f"{d.get('region')}, seed {d.get('seed')}, {d.get('episodes')} episodes); pass "
                                   "--force to replace it, or choose another --out")
             raise ConfigError(f"--out {out}: is not empty; pass --force to clear it, or choose another --out")
-        shutil.rmtree(out)
+        if held is None:
+            remove(out)
+        else:
+            held.enter_context(replacing(out))
     created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)

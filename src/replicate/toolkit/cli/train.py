@@ -10,6 +10,7 @@ from pathlib import Path
 
 from replicate.core import artifacts
 from replicate.core.artifacts import CheckpointError
+from replicate.core.claims import locked
 from replicate.core.params import Params, load_params, run_config
 from replicate.core.schema import ConfigError, check_seed
 from replicate.toolkit.cli.inputs import (
@@ -62,12 +63,15 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.out or f"my-runs/{args.config}-{args.method}-{region.name}-s{seed}")
     for note in region.notes:
         print(f"region {region.name}: {note}", file=sys.stderr)
-    args.interrupted_hint = f"`{resume_command(out)}` continues from the last checkpoint"
     check_schedule(rc, episodes, every)
-    created = False
-    if not args.resume:
-        created = claim_run_folder(out, args.force)
+    created, replaced = False, False
+    if args.resume:
+        args.held.enter_context(locked(out))
+    else:
+        replaced = args.force and out.is_dir() and any(out.iterdir())
+        created = claim_run_folder(out, args.force, args.held)
         write_run_region(out, region)  # so --resume, evaluate and export need only the folder
+    args.interrupted_hint = lambda: interrupted_hint(out, replaced)
     t0 = time.perf_counter()
     try:
         summary = train(rc, region, episodes, seed, out,
@@ -88,6 +92,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"kept the actors of episode {summary['selected_episode']} (validation coverage "
               f"{summary['selected_validation_coverage']:.3f}; the last ones are in actors_last.pt)")
     return 0
+
+
+def interrupted_hint(out: Path, replaced: bool) -> str:
+    """What to do after Ctrl-C, as the folder stands once the command has let go of it."""
+    if replaced:
+        return f"{out} holds the run it held before (nothing of the new one was kept)"
+    if (out / "checkpoint.pt").exists():
+        return f"`{resume_command(out)}` continues from the last checkpoint"
+    return f"no checkpoint was written yet; start the run again (with --force, {out} is not empty)"
 
 
 def resumed_run(run: Path, params: Params):

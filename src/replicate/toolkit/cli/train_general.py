@@ -30,8 +30,7 @@ def add(sub, verb: dict, regions: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """``train-general``: one seed of the general policy into ``--out`` (no checkpoints: an interrupted run starts
     again; 3,000 episodes take about half an hour of one core)."""
-    import shutil
-
+    from replicate.core.claims import locked, replacing
     from replicate.learn.general_train import train_recorded
     from replicate.learn.process import training_process
 
@@ -45,10 +44,11 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: a file, not a folder; choose a folder for the run")
+    args.held.enter_context(locked(out))
     if out.exists() and any(out.iterdir()):
         if not args.force:
             raise ConfigError(f"--out {out}: holds a run already; choose a new folder or pass --force to replace it")
-        shutil.rmtree(out)
+        args.held.enter_context(replacing(out))  # the old run stays until the new one is complete
     training_process()
     # recorded as the stages record a seed: train_general or train_design keeps this run when its values match
     summary = train_recorded(dataclasses.replace(params, general=config), args.seed, out, not args.no_progress)

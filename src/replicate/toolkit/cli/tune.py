@@ -9,6 +9,7 @@ from pathlib import Path
 from replicate.core import artifacts
 from replicate.core.params import load_params
 from replicate.toolkit.cli.inputs import (
+    claim_out_file,
     overrides,
     resolve_region,
 )
@@ -39,24 +40,25 @@ def run(args: argparse.Namespace) -> int:
 
     params = load_params(args.params, overrides(args.set))
     executor = configured_executor(params, args.executor)
+    ms = params.tuning.method
+    default = {"baselines": "metrics/tuning/baselines.json", "method": ms.result,
+               "general-baselines": params.tuning.general_baselines.result}[args.what]
+    # checked before the study runs; a study's result is written again from its storage, so it replaces the old
+    out = claim_out_file(Path(args.out or default), force=True, held=args.held)
     if args.what == "baselines":
         names = params.stages.get("pipeline", {}).get("regions", list(params.regions))
-        result = {"baselines": tune_baselines(params, {r: resolve_region(r, params) for r in names}, executor)}
-        out = Path(args.out or "metrics/tuning/baselines.json")
-        artifacts.write_json(out, result["baselines"])
-        for key, b in result["baselines"].items():
+        result = tune_baselines(params, {r: resolve_region(r, params) for r in names}, executor)
+        artifacts.write_json(out, result)
+        for key, b in result.items():
             print(f"{key}: tuning coverage {b['tuning_coverage']:.3f} with {b['gains']} ({b['trials']} trials)")
     elif args.what == "general-baselines":
         result = tune_general_baselines(params, executor, params.stages.get("pipeline", {}).get("workers", 1))
-        out = Path(args.out or params.tuning.general_baselines.result)
         artifacts.write_json(out, result)
         for key, b in result.items():
             print(f"{key}: coverage {b['tuning_coverage']:.3f} on the training worlds with {b['gains']} "
                   f"({b['trials']} trials, {b['cpu_seconds']:.0f} CPU s)")
     else:
-        ms = params.tuning.method
         result = tune_method(params, {r: resolve_region(r, params) for r in ms.regions}, executor)
-        out = Path(args.out or ms.result)
         artifacts.write_json(out, result)
         print(f"{ms.config} {ms.method.upper()}-MARL: tuning coverage {result['tuning_coverage']:.3f} with "
               f"{result['values']} ({result['trials']} trials, {result['cpu_seconds']:.0f} CPU s); set them as "
