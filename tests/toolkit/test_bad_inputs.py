@@ -130,3 +130,24 @@ def test_general_policy_inputs_are_refused_by_name(capsys, tmp_path, monkeypatch
     assert code == 2 and message in err and "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["actor.pt", "general", "partial.json"], "nothing written"
     assert sorted(p.name for p in (tmp_path / "general").iterdir()) == ["actor.pt"]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["cover", "--region", "lake.csv", "--out", "o"], "lake.csv: holds a table without geometries"),
+    (["cover", "--region", "data/bedok_outline.geojson", "--radius-m", "0.01", "--out", "o"],
+     "would hold 3.48e+13 cells"),
+    (["--set", "coverage.table_spacing=1e-9", "train", "--episodes", "50", "--out", "o"],
+     "its grid at coverage.table_spacing = 1e-09 would hold"),
+    (["--set", "tuning.baselines.storage=notaurl", "tune", "baselines", "--out", "o.json"],
+     "tuning.baselines.storage must be an SQLAlchemy URL"),
+])
+def test_inputs_that_once_raised_or_ran_out_of_memory_are_named(capsys, tmp_path, monkeypatch, argv, message):
+    """A table without geometries, a lake thousands of coverage radii across, a grid of 1e-9 m, a study storage
+    that is not a URL: each refused by name before anything is allocated or written (exit 2)."""
+    root = Path(__file__).resolve().parents[2]
+    (tmp_path / "lake.csv").write_text("x,y\n0,0\n1,0\n1,1\n")
+    (tmp_path / "data").symlink_to(root / "data")
+    monkeypatch.chdir(tmp_path)
+    code, err = run(capsys, "--params", str(root / "params.yaml"), *argv)
+    assert code == 2 and message in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "lake.csv"], "nothing written"

@@ -6,9 +6,10 @@ Each value's type and range stand beside it (``schema``).
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Any, Literal
 
-from pydantic import model_validator
+from pydantic import AfterValidator, model_validator
 
 from replicate.core.schema import (
     ConfigError,
@@ -24,6 +25,17 @@ from replicate.core.schema import (
     Whole,
     section,
 )
+
+
+def database_url(value: str) -> str:
+    """An SQLAlchemy URL (``dialect[+driver]://...``), checked before a study opens it."""
+    if not re.match(r"^[A-Za-z][\w+.-]*://", value):
+        raise ValueError("must be an SQLAlchemy URL such as sqlite:///metrics/tuning/studies.db or "
+                         "postgresql://USER@HOST/DB")
+    return value
+
+
+Storage = Annotated[Text, AfterValidator(database_url)]  # where an Optuna study lives
 
 
 @section
@@ -101,7 +113,7 @@ class Search:
 
 @section
 class BaselineSearch:
-    storage: Text  # SQLAlchemy URL of the studies (the tune_baselines stage's SQLite file by default)
+    storage: Storage  # SQLAlchemy URL of the studies (the tune_baselines stage's SQLite file by default)
     naive: Search  # every gain of NaiveConfig
     lloyd: Search  # every gain of LloydConfig (converged_steps is not a gain)
 
@@ -111,7 +123,7 @@ class MethodSearch:
     """A search of one method's training values inside a config (the study writes no config: its best values
     go into ``configs.CONFIG.per_method.METHOD`` by hand, with the study's name beside them)."""
 
-    storage: Text  # SQLAlchemy URL of the study (a committed SQLite file by default)
+    storage: Storage  # SQLAlchemy URL of the study (a committed SQLite file by default)
     result: Text  # JSON of the best values, read by the report
     config: Text
     method: Text
@@ -139,7 +151,7 @@ class GeneralBaselineSearch:
     """Naive swarming's and Lloyd's gains for the general policy's comparisons: one set for every lake, tuned on
     its training worlds behind the wall (``tuning.tune_general_baselines``), in the spaces of ``baselines``."""
 
-    storage: Text  # SQLAlchemy URL of the studies
+    storage: Storage  # SQLAlchemy URL of the studies
     result: Text  # JSON of the best gains, which ``replicate evaluate --policy`` reads
     starts: Count  # episodes per world and trial: half from the corner patch, half scattered
     naive_trials: Count

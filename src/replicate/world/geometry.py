@@ -103,6 +103,22 @@ def minkowski(region: Polygon, offsets: np.ndarray) -> tuple[Polygon, Polygon]:
     return eroded, dilated
 
 
+MAX_GRID_CELLS = 25_000_000  # a grid's cells: a few hundred MB while it is built (Bedok at the paper's scale: 0.2 M)
+
+
+def check_grid_size(region: Polygon, radius: float, table_spacing: float, raster_spacing: float) -> None:
+    """Refuse, before any allocation, a region whose area table or union raster would not fit in memory: a region
+    hundreds of coverage radii across at the configured spacings (a tiny ``--radius-m`` on a large lake)."""
+    minx, miny, maxx, maxy = region.bounds
+    for key, h in (("coverage.table_spacing", table_spacing), ("coverage.raster_spacing", raster_spacing)):
+        cells = ((maxx - minx + 6 * radius) / h) * ((maxy - miny + 6 * radius) / h)
+        if cells > MAX_GRID_CELLS:
+            raise ValueError(f"the region is {(maxx - minx) / radius:.3g} × {(maxy - miny) / radius:.3g} coverage "
+                             f"radii: its grid at {key} = {h:g} would hold {cells:.3g} cells (at most "
+                             f"{MAX_GRID_CELLS:.3g}); cover it with a larger radius or fewer buoys, or a coarser "
+                             f"{key}")
+
+
 class CoverageGeometry:
     """Fast, batched eq. (5)/(6) geometry for one region and one coverage polygon (see module docstring).
 
@@ -118,6 +134,7 @@ class CoverageGeometry:
         if not (0 < table_spacing <= radius / 2 and 0 < raster_spacing <= radius / 2):
             raise ValueError(f"table_spacing and raster_spacing must lie in (0, R/2] = (0, {radius / 2:g}] m: a "
                              "coarser grid does not resolve the coverage polygon")
+        check_grid_size(region, radius, table_spacing, raster_spacing)
         self.region = region
         self.radius = radius
         self.edges = edges

@@ -143,6 +143,9 @@ def read_outline(path: str | Path, layer: str | None = None):
             gdf = gpd.read_file(path, layer=layer) if layer else gpd.read_file(path)
     except Exception as exc:  # noqa: BLE001 - any reader failure is a bad input
         raise RegionError(f"{path}: cannot be read as a vector file ({exc})") from exc
+    if not isinstance(gdf, gpd.GeoDataFrame) or "geometry" not in gdf:
+        raise RegionError(f"{path}: holds a table without geometries; give a vector file of the outline (GeoJSON, "
+                          "shapefile, GeoPackage)")
     if gdf.empty:
         raise RegionError(f"{path}: the file holds no features")
     if gdf.crs is None:
