@@ -9,6 +9,7 @@ import geopandas as gpd
 import pytest
 from shapely.geometry import Polygon
 
+from replicate.core.artifacts import CheckpointError
 from replicate.toolkit.cli import main as cli_main
 
 TRAIN = ["train", "--config", "tuned", "--method", "cr", "--region", "square", "--episodes", "50", "--no-progress"]
@@ -151,3 +152,42 @@ def test_inputs_that_once_raised_or_ran_out_of_memory_are_named(capsys, tmp_path
     code, err = run(capsys, "--params", str(root / "params.yaml"), *argv)
     assert code == 2 and message in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "lake.csv"], "nothing written"
+
+
+def test_silent_wrong_results_are_refused(capsys, tmp_path, monkeypatch):
+    """An unknown declared CRS (read as WGS 84 before), a damaged policy file (it loaded and ran), a drift faster
+    than a buoy, a damaged run record: each named, exit 2; a 3-D outline is read as its 2-D shadow."""
+    from replicate.learn.policy import load_policy
+    from replicate.toolkit.export import export_general
+    from replicate.world.regions import RegionError, region_from_file
+
+    root = Path(__file__).resolve().parents[2]
+    square = [[0, 0], [0.9, 0], [0.9, 0.9], [0, 0.9], [0, 0]]
+    unknown = {"type": "FeatureCollection", "crs": {"type": "name", "properties": {"name": "EPSG:99999"}},
+               "features": [{"type": "Feature", "properties": {}, "geometry": {"type": "Polygon",
+                                                                                "coordinates": [square]}}]}
+    (tmp_path / "unknown.geojson").write_text(json.dumps(unknown))
+    with pytest.raises(RegionError, match="declares the CRS 'EPSG:99999', which is not a known CRS"):
+        region_from_file(tmp_path / "unknown.geojson")
+    lifted = [[103.92 + x / 100, 1.34 + y / 100, 7.5] for x, y in square]
+    (tmp_path / "heights.geojson").write_text(json.dumps({**unknown, "crs": None, "features": [
+        {"type": "Feature", "properties": {}, "geometry": {"type": "Polygon", "coordinates": [lifted]}}]}))
+    assert region_from_file(tmp_path / "heights.geojson").area == pytest.approx(9.0)
+
+    export_general(root / "policies" / "runs" / "general-s10" / "actor.pt", tmp_path / "p.pt")
+    data = bytearray((tmp_path / "p.pt").read_bytes())
+    at = data.index(b"archive/data/0") + 64  # inside the first tensor's bytes
+    data[at:at + 256] = bytes(b ^ 0xFF for b in data[at:at + 256])
+    (tmp_path / "damaged.pt").write_bytes(bytes(data))
+    load_policy(tmp_path / "p.pt")
+    with pytest.raises(CheckpointError, match="damaged: its weights or metadata are not the ones exported"):
+        load_policy(tmp_path / "damaged.pt")
+
+    monkeypatch.chdir(root)
+    code, err = run(capsys, "evaluate", "--policy", str(tmp_path / "p.pt"), "--region", "square", "--current",
+                    "1e9,0", "--out", str(tmp_path / "c.json"))
+    assert code == 2 and "the buoys would be swept off" in err and not (tmp_path / "c.json").exists()
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "run.json").write_text("{not json")
+    code, err = run(capsys, "train", "--out", str(tmp_path / "run"))
+    assert code == 2 and "run.json: not a readable run record" in err

@@ -8,6 +8,7 @@ them from training checkpoints; every wing that runs a policy reads it with ``lo
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import warnings
@@ -57,8 +58,21 @@ class FleetPolicy(nn.Module):
         return torch.tanh(self.net(obs))
 
 
+def checksum(module, metadata: dict) -> str:
+    """SHA-256 of a policy's tensors (names, shapes, bytes) and of its metadata but this very field: what a file
+    carries so that a reader can tell it is the one that was written."""
+    digest = hashlib.sha256(json.dumps({k: v for k, v in metadata.items() if k != "checksum"},
+                                       sort_keys=True).encode())
+    for name, tensor in sorted(module.state_dict().items()):
+        digest.update(f"{name}{tuple(tensor.shape)}{tensor.dtype}".encode())
+        digest.update(tensor.detach().contiguous().cpu().numpy().tobytes())
+    return digest.hexdigest()
+
+
 def save_policy(module: torch.jit.ScriptModule, metadata: dict, out: str | Path) -> None:
-    """The TorchScript ``module`` with ``metadata`` as its ``metadata.json``, written atomically to ``out``."""
+    """The TorchScript ``module`` with ``metadata`` as its ``metadata.json``, written atomically to ``out``; the
+    metadata carries the ``checksum`` of both."""
+    metadata["checksum"] = checksum(module, metadata)
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
@@ -84,4 +98,8 @@ def load_policy(path: str | Path) -> tuple[torch.jit.ScriptModule, dict]:
         metadata = json.loads(extra["metadata.json"])
     except Exception as exc:  # noqa: BLE001 - any load failure is a corrupt file
         raise CheckpointError(f"{path}: not a readable exported policy ({type(exc).__name__}: {exc})") from exc
+    # a file written before policies carried a checksum is read unchecked
+    if "checksum" in metadata and checksum(module, metadata) != metadata["checksum"]:
+        raise CheckpointError(f"{path}: damaged: its weights or metadata are not the ones exported (checksum "
+                              "mismatch); export the policy again")
     return module, metadata

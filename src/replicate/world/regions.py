@@ -130,6 +130,26 @@ def declared_crs(path: Path) -> str | None:
         return None
 
 
+def check_declared_crs(path: Path, read_as) -> None:
+    """Refuse a GeoJSON whose declared CRS the reader did not take: a name it does not know (``EPSG:99999``) is
+    read as WGS 84 without a word, and the lake would land somewhere else."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    declared = declared_crs(path)
+    if declared is None:
+        return
+    try:
+        known = CRS.from_user_input(declared)
+    except CRSError:
+        raise RegionError(f"{path}: declares the CRS {declared!r}, which is not a known CRS (the reader would take "
+                          "it for WGS 84); write the file with the CRS its coordinates are in, e.g. EPSG:4326") \
+            from None
+    if not known.equals(read_as, ignore_axis_order=True):
+        raise RegionError(f"{path}: declares the CRS {declared!r} but was read as {read_as.to_string()}; write "
+                          "the file with a CRS the readers take (an EPSG code)")
+
+
 def read_outline(path: str | Path, layer: str | None = None):
     """Read a vector file with geopandas and return (polygon, crs, properties of its feature)."""
     import geopandas as gpd
@@ -150,7 +170,10 @@ def read_outline(path: str | Path, layer: str | None = None):
         raise RegionError(f"{path}: the file holds no features")
     if gdf.crs is None:
         raise RegionError(f"{path}: the file has no CRS; write it with one (for example EPSG:4326)")
+    check_declared_crs(path, gdf.crs)
     gdf = gdf[~gdf.geometry.is_empty & gdf.geometry.notna()]
+    if gdf.geometry.has_z.any():  # a 3-D outline (heights of the shore): the water's outline is its 2-D shadow
+        gdf = gdf.set_geometry(shapely.force_2d(gdf.geometry.values))
     polys = gdf[gdf.geom_type.isin(["Polygon", "MultiPolygon"])]
     if polys.empty:
         kinds = sorted(set(gdf.geom_type))

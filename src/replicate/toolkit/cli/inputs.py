@@ -92,8 +92,8 @@ def claim_run_folder(out: Path, force: bool, held: ExitStack | None = None) -> b
             if (out / "checkpoint.pt").exists():
                 raise ConfigError(f"--out {out}: holds an interrupted run; continue it with `{resume_command(out)}`, "
                                   "or pass --force to start over")
-            if run.exists() and json.loads(run.read_text()).get("status") == "finished":
-                d = json.loads(run.read_text())
+            d = read_record(run)
+            if d.get("status") == "finished":
                 raise ConfigError(f"--out {out}: holds a finished run ({d.get('config')}/{d.get('method')} on "
                                   f"{d.get('region')}, seed {d.get('seed')}, {d.get('episodes')} episodes); pass "
                                   "--force to replace it, or choose another --out")
@@ -110,6 +110,18 @@ def claim_run_folder(out: Path, force: bool, held: ExitStack | None = None) -> b
     if not os.access(out, os.W_OK):
         raise ConfigError(f"--out {out}: the folder is not writable; choose a writable folder")
     return created
+
+
+def read_record(path: Path) -> dict:
+    """A run's ``run.json`` as a mapping, refused by name when it is there but unreadable; {} when absent."""
+    if not path.exists():
+        return {}
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise CheckpointError(f"{path}: not a readable run record ({exc}); the run folder is damaged: pass --force "
+                              "to replace it") from None
+    return record if isinstance(record, dict) else {}
 
 
 def run_record(run: Path) -> dict:

@@ -16,6 +16,7 @@ from replicate.core.schema import ConfigError, check_seed
 from replicate.toolkit.cli.inputs import (
     claim_run_folder,
     overrides,
+    read_record,
     resolve_region,
     resume_command,
 )
@@ -106,7 +107,6 @@ def interrupted_hint(out: Path, replaced: bool) -> str:
 def resumed_run(run: Path, params: Params):
     """(run config, region, episodes, seed) of the interrupted run in ``run``, read from its own checkpoint: the
     settings it was started with, whatever params.yaml says now."""
-    import json
 
     from replicate.core.params import RunConfig
     from replicate.core.schema import build
@@ -115,7 +115,7 @@ def resumed_run(run: Path, params: Params):
     if not run.is_dir():
         raise ConfigError(f"--resume {run}: no such run folder")
     if not (run / "checkpoint.pt").exists():
-        status = json.loads((run / "run.json").read_text()).get("status") if (run / "run.json").exists() else None
+        status = read_record(run / "run.json").get("status")
         if status == "finished":
             raise ConfigError(f"--resume {run}: the run has already finished (nothing to continue); evaluate it "
                               f"with `replicate evaluate {run}`")
