@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 from replicate.compare import baselines, metrics
 from replicate.compare.best_layout import best_coverage
@@ -170,8 +171,6 @@ def baseline_policy(name: str, params: Params, tuned: dict | None = None) -> bas
 def steps_bar(params: Params, rc: RunConfig, progress: bool, what: str, steps: int | None = None,
               scenarios: bool = True):
     """A progress bar over the environment steps of an evaluation (and of its robustness scenarios)."""
-    from tqdm.auto import tqdm
-
     scenarios = scenarios * sum(round(s.horizon * rc.world.episode_length) for s in params.evaluate.robustness.values())
     total = (rc.world.episode_length if steps is None else steps) + scenarios
     return tqdm(total=total, desc=what, unit="step", disable=not progress, leave=False)
@@ -230,6 +229,29 @@ def lloyd_name(rivals: dict) -> str:
     return "lloyd_tuned" if "lloyd_tuned" in rivals else "lloyd"
 
 
+class Phases:
+    """A progress bar of an evaluation's phases (each rolls out every episode, or searches the best layout:
+    seconds each): ``with Phases(lake, n, progress) as phase: phase("Lloyd")`` counts the phase before it."""
+
+    def __init__(self, where: str, total: int, progress: bool):
+        self.where, self.started = where, False
+        self.bar = tqdm(total=total, unit="phase", disable=not progress, leave=False)
+
+    def __enter__(self):
+        return self
+
+    def __call__(self, label: str) -> None:
+        if self.started:
+            self.bar.update()
+        self.started = True
+        self.bar.set_description(f"{self.where}: {label}")
+
+    def __exit__(self, *exc) -> None:
+        if exc[0] is None and self.started:
+            self.bar.update()
+        self.bar.close()
+
+
 def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
                     lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False,
                     seeds: dict[Hashable, str | Path] | None = None, geodesic: bool = True, naive: bool = True,
@@ -265,18 +287,23 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
         return {"coverage": covered(live),
                 "max_outside_m": float(distance_outside(region.polygon, positions).max()) * region.scale}
 
-    out = {"kind": "general policy", "policy": str(policy_path), "region": region.name, "n_agents": n_agents,
-           "start": start, "lose": lose, "current": list(current) if current else None, "steps": steps,
-           "episodes": ev.episodes, **learned(module, meta), "baselines": {}}
-    if others:
-        out["seeds"] = {label: learned(*policy) for label, policy in others.items()}
     rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic, naive)
-    for name, policy in rivals.items():
-        out["baselines"][name] = {"coverage": covered(episodes(policy, None)[1]), "gains": how}
-    best = 0.0
-    if best_layout:
-        best = best_coverage(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges)
-        out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
+    with Phases(region.name, 1 + len(others) + len(rivals) + best_layout, progress) as phase:
+        phase("the policy")
+        out = {"kind": "general policy", "policy": str(policy_path), "region": region.name, "n_agents": n_agents,
+               "start": start, "lose": lose, "current": list(current) if current else None, "steps": steps,
+               "episodes": ev.episodes, **learned(module, meta), "baselines": {}}
+        for label, policy in others.items():
+            phase(f"seed {label}")
+            out.setdefault("seeds", {})[label] = learned(*policy)
+        for name, policy in rivals.items():
+            phase(name)
+            out["baselines"][name] = {"coverage": covered(episodes(policy, None)[1]), "gains": how}
+        best = 0.0
+        if best_layout:
+            phase("the best layout")
+            best = best_coverage(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges)
+            out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
     lloyd = out["baselines"][lloyd_name(rivals)]["coverage"]["mean"]
     out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None
     out["ratio_to_best"] = out["coverage"]["mean"] / best if best > 0 else None

@@ -20,6 +20,7 @@ import dataclasses
 import functools
 import hashlib
 import json
+import logging
 import shutil
 import tempfile
 import time
@@ -56,6 +57,15 @@ def study_name(prefix: str, *searched) -> str:
     return f"{prefix}-{digest[:10]}"
 
 
+class QuietInterrupt(logging.Filter):
+    """Optuna logs a trial stopped by Ctrl-C as a failure, with its traceback; the command says it was interrupted
+    in one line instead (``toolkit.cli.command``)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        cause = record.exc_info[1] if record.exc_info else None
+        return not (isinstance(cause, KeyboardInterrupt) or "KeyboardInterrupt" in record.getMessage())
+
+
 def open_storage(storage: str):
     """The Optuna storage at the SQLAlchemy URL ``storage``, its tables created if new: open it once before several
     processes share a new file, or they race to create the same tables."""
@@ -64,6 +74,8 @@ def open_storage(storage: str):
     if storage.startswith("sqlite:///"):
         Path(storage.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    if not any(isinstance(f, QuietInterrupt) for f in optuna.logging.get_logger("optuna").filters):
+        optuna.logging.get_logger("optuna").addFilter(QuietInterrupt())
     # a worker's heartbeat: the trial of a worker that died (killed, machine lost) is failed after the grace
     # period, so a resumed study does not wait for it, while the live trials of other workers go on
     with warnings.catch_warnings():

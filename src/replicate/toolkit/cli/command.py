@@ -68,17 +68,26 @@ def glued_values(argv: list[str]) -> list[str]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
+def parsed(argv: list[str] | None) -> argparse.Namespace:
+    """The command line as the verbs read it: --params and --set before or after the verb, the older --run."""
     args = build_parser().parse_args(glued_values(sys.argv[1:] if argv is None else argv))
     if getattr(args, "run_option", None) is not None:
         args.run = args.run or args.run_option
-    args.params = args.params_after_verb or args.params  # --params and --set work before or after the verb
+    args.params = args.params_after_verb or args.params
     args.set = (args.set or []) + (args.set_after_verb or [])
-    warnings.simplefilter("default")
-    if args.command in ("train", "cover", "tune"):
-        from replicate.learn.process import training_process
+    return args
 
-        training_process()
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = parsed(argv)
+        warnings.simplefilter("default")
+        if args.command in ("train", "cover", "tune"):
+            from replicate.learn.process import training_process
+
+            training_process()
+    except KeyboardInterrupt:  # Ctrl-C while the command starts: one line, as later
+        return interrupted(None)
     try:
         with ExitStack() as held:  # the outputs this command claims (``core.claims``), released however it ends
             args.held = held

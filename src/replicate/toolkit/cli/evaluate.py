@@ -33,6 +33,7 @@ def add(sub, verb: dict, regions: str) -> None:
     e.add_argument("--out", default=None,
                    help="output JSON (default: RUN/metrics.json, or my-runs/baseline-NAME-REGION.json)")
     e.add_argument("--force", action="store_true", help="replace --out if it exists")
+    e.add_argument("--no-progress", action="store_true", help="no progress bars")
     g = e.add_argument_group("a general policy, zero-shot on any region (instead of a run)")
     g.add_argument("--policy", default=None, help="a general policy file (`replicate export` of a general run)")
     g.add_argument("--n-agents", type=int, default=None, help="buoys (default: world.n_agents, 9); the region is "
@@ -71,9 +72,9 @@ def run(args: argparse.Namespace) -> int:
                else Path(f"my-runs/baseline-{args.baseline}-{region.name}.json"))
     out = claim_out_file(Path(args.out) if args.out else default, args.force, held=args.held)
     if args.run is not None:
-        result = evaluate_run(args.run, params, region, progress=True)
+        result = evaluate_run(args.run, params, region, progress=not args.no_progress)
     else:
-        result = evaluate_baseline(args.baseline, params, region, args.config, progress=True)
+        result = evaluate_baseline(args.baseline, params, region, args.config, progress=not args.no_progress)
     artifacts.write_json(out, result)
     cov = result["coverage"]
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes "
@@ -117,7 +118,7 @@ def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
     region = dataclasses.replace(region, polygon=affinity.scale(region.polygon, s, s, origin=(0, 0)),
                                  scale=region.scale / s)
     out = claim_out_file(Path(args.out or f"my-runs/policy-{region.name}-n{n}.json"), args.force, held=args.held)
-    result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current,
+    result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current, not args.no_progress,
                              geodesic=args.geodesic)
     artifacts.write_json(out, result)
     cov, rivals = result["coverage"], result["baselines"]
