@@ -137,6 +137,8 @@ def test_general_policy_inputs_are_refused_by_name(capsys, tmp_path, monkeypatch
     (["cover", "--region", "lake.csv", "--out", "o"], "lake.csv: holds a table without geometries"),
     (["cover", "--region", "data/bedok_outline.geojson", "--radius-m", "0.01", "--out", "o"],
      "would hold 3.48e+13 cells"),
+    (["cover", "--region", "data/bedok_outline.geojson", "--radius-m", "1e12", "--out", "o"],
+     "--radius-m 1e+12: one buoy's coverage is wider than the whole lake (8.333e+05 m²"),
     (["--set", "coverage.table_spacing=1e-9", "train", "--episodes", "50", "--out", "o"],
      "its grid at coverage.table_spacing = 1e-09 would hold"),
     (["--set", "tuning.baselines.storage=notaurl", "tune", "baselines", "--out", "o.json"],

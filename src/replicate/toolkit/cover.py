@@ -82,6 +82,10 @@ def scaled_setup(path: Path, params: Params, n_agents: int | None, radius_m: flo
         if radius_m <= 0:
             raise RegionError(f"the coverage radius must be positive, got {radius_m} m")
         real = region_from_file(path, area=None)
+        across = 2 * math.sqrt(real.polygon.area / math.pi)  # m: the width of a round lake of the same area
+        if radius_m > across:
+            raise RegionError(f"--radius-m {radius_m:g}: one buoy's coverage is wider than the whole lake "
+                              f"({real.polygon.area:.4g} m², about {across:.4g} m across); give a radius below that")
         unit = radius_m / params.coverage.radius  # metres per simulation metre
         sim = check_polygon(affinity.scale(real.polygon, 1 / unit, 1 / unit, origin=(0, 0)), real.name)
         region = dataclasses.replace(real, polygon=sim, scale=unit, notes=real.notes + (
