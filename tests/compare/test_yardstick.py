@@ -1,4 +1,4 @@
-"""The design yardstick (``design.py``, ``replicate compare``): two versions of the general training, each the
+"""The yardstick (``compare.yardstick``, ``replicate compare``): two versions of the general training, each the
 policies of several training seeds, read on lakes of their own with the seed as the unit of the interval."""
 
 import dataclasses
@@ -14,10 +14,10 @@ from replicate.compare.yardstick import (
     SeedPolicy,
     Versions,
     check_versions,
-    design_cells,
-    design_lakes,
     seed_scores,
     verdict,
+    yardstick_cells,
+    yardstick_lakes,
 )
 from replicate.core import artifacts
 from replicate.core.schema import ConfigError, to_dict
@@ -48,10 +48,10 @@ def policy(params, folder, seed: int, gains=GAINS):
 def test_the_cells_cross_every_design_lake_with_fleets_starts_and_events(params):
     from replicate.compare.suite import suite_lakes
 
-    cells = design_cells(params)
-    d = params.design
+    cells = yardstick_cells(params)
+    d = params.yardstick
     assert len(cells) == d.lakes * len(d.fleets) * len(d.starts) * len(d.events) == len(set(cells))
-    assert len(design_lakes(params)) == d.lakes and set(design_lakes(params)).isdisjoint(suite_lakes(params))
+    assert len(yardstick_lakes(params)) == d.lakes and set(yardstick_lakes(params)).isdisjoint(suite_lakes(params))
 
 
 def by_seed(baseline: list[float], candidate: list[float]) -> dict[SeedPolicy, float]:
@@ -70,12 +70,12 @@ def test_the_verdict_resamples_seeds_and_keeps_the_candidate_only_above_the_marg
     overlap = by_seed([0.960, 0.990, 0.975, 0.999], [0.970, 1.000, 0.985, 1.009])
     v = verdict(overlap, params)
     assert v["difference"]["delta"] == pytest.approx(0.01) and v["difference"]["lo"] < 0 and v["keep"] == "baseline"
-    strict = dataclasses.replace(params, design=dataclasses.replace(params.design, min_gain=0.02))
+    strict = dataclasses.replace(params, yardstick=dataclasses.replace(params.yardstick, min_gain=0.02))
     assert verdict(apart, strict)["keep"] == "baseline"
 
 
 def test_with_two_equal_versions_the_rule_rarely_keeps_the_candidate_at_min_seeds(params):
-    """Why ``design.min_seeds``: the percentile interval over very few seeds is too narrow. Equal versions (both
+    """Why ``yardstick.min_seeds``: the percentile interval over very few seeds is too narrow. Equal versions (both
     sides drawn from one distribution): at 2 seeds a side the candidate is kept far more often than the nominal
     2.5 %, at ``min_seeds`` close to it."""
     rng, boot = np.random.default_rng(0), stats.Bootstrap(0.95, 1000, 0)
@@ -85,7 +85,7 @@ def test_with_two_equal_versions_the_rule_rarely_keeps_the_candidate_at_min_seed
                         for _ in range(draws)])
 
     assert kept(2) > 0.10
-    assert kept(params.design.min_seeds) < 0.06
+    assert kept(params.yardstick.min_seeds) < 0.06
 
 
 def test_a_seed_is_written_by_its_label_and_files_keep_the_order_given():
@@ -121,7 +121,7 @@ def test_versions_that_cannot_be_compared_are_refused_by_name(params, tmp_path):
 
 @pytest.mark.slow
 def test_compare_reads_both_versions_on_the_same_episodes_and_keeps_a_finished_result(params, tmp_path):
-    """`replicate compare` on one design lake, with the candidate's seeds byte copies of the baseline's: every
+    """`replicate compare` on one yardstick lake, with the candidate's seeds byte copies of the baseline's: every
     policy and Lloyd on every cell, the copies scoring exactly as their originals (the same episodes), so the
     difference is 0 and the baseline is kept; the same --out is not replaced without --force (exit 2, the file
     unchanged), and a version of one seed is refused (exit 2)."""
@@ -131,8 +131,8 @@ def test_compare_reads_both_versions_on_the_same_episodes_and_keeps_a_finished_r
         shutil.copy(f, tmp_path / f"copy{k}" / "policy.pt")
     copies = [str(tmp_path / f"copy{k}" / "policy.pt") for k in (1, 2)]
     out = tmp_path / "compare.json"
-    small = ["--set", "design.lakes=1", "--set", "design.fleets=[5]", "--set", "design.starts=[random]",
-             "--set", "design.events=[none,lose]", "--set", "design.episodes=2", "--set", "design.min_seeds=2"]
+    small = ["--set", "yardstick.lakes=1", "--set", "yardstick.fleets=[5]", "--set", "yardstick.starts=[random]",
+             "--set", "yardstick.events=[none,lose]", "--set", "yardstick.episodes=2", "--set", "yardstick.min_seeds=2"]
     argv = ["compare", "--baseline", *files, "--candidate", *copies, "--out", str(out), "--workers", "1"]
     assert cli(*small, *argv).wait(timeout=600) == 0
     result = json.loads(out.read_text())

@@ -239,9 +239,9 @@ def test_the_pipeline_keeps_the_best_validated_seed_and_skips_finished_ones(tmp_
 
 @pytest.mark.slow
 def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp_path):
-    """``pipeline.general.train_design`` trains ``design.seeds`` as ``train_general`` trains its seeds, without a
-    deployed policy; ``design.standing_baseline`` gives its exported policies, and refuses by name a folder
-    without one, an unreadable summary, other seeds than ``design.seeds`` or runs trained with other values (a
+    """``pipeline.general.train_yardstick`` trains ``yardstick.seeds`` as ``train_general`` trains its seeds, without a
+    deployed policy; ``yardstick.standing_baseline`` gives its exported policies, and refuses by name a folder
+    without one, an unreadable summary, other seeds than ``yardstick.seeds`` or runs trained with other values (a
     stale baseline would score every change since); `replicate compare` without --baseline reads it beside the
     parameters file."""
     import shutil
@@ -252,7 +252,7 @@ def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp
     from replicate.core.params import load_params
     from replicate.core.schema import ConfigError
     from replicate.learn.policy import load_policy
-    from replicate.pipeline.general import train_design
+    from replicate.pipeline.general import train_yardstick
 
     from ..command import cli
     from ..conftest import ROOT
@@ -261,7 +261,7 @@ def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp
     raw["general"].update(regions=["square"], fleet=[6], lakes=1, lake_fleet=[5, 5], lake_ratio=[1.0, 1.0],
                           n_envs=4, episodes=8, episode_length=10, learning_starts=50, batch_size=16,
                           buffer_size=1000, update_every=8)
-    raw["design"].update(seeds=[2, 3], min_seeds=2)
+    raw["yardstick"].update(seeds=[2, 3], min_seeds=2)
     raw["regions"]["bedok"]["path"] = str(ROOT / raw["regions"]["bedok"]["path"])
     params_file = tmp_path / "params.yaml"
 
@@ -273,10 +273,10 @@ def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp
     gains = {"naive_tuned": {"gains": {"attraction": 8.0, "avoid_range": 1.0, "avoidance": 10.0, "damping": 0.1}},
              "lloyd_tuned": {"gains": {"gain": 50.0, "damping": 0.2}}}
     (tmp_path / "gains.json").write_text(json.dumps(gains))
-    folder = tmp_path / "design"
+    folder = tmp_path / "yardstick"
     with pytest.raises(ConfigError, match="no standing baseline here"):
         standing_baseline(params, folder)
-    summary = train_design(str(params_file), str(folder), str(tmp_path / "gains.json"), 1)
+    summary = train_yardstick(str(params_file), str(folder), str(tmp_path / "gains.json"), 1)
     assert [r["seed"] for r in summary["runs"]] == [2, 3] and not (folder / "general.pt").exists()
     files = standing_baseline(params, folder)
     assert [load_policy(f)[1]["trained"]["seed"] for f in files] == [2, 3]
@@ -286,8 +286,8 @@ def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp
     for k, f in enumerate(files):
         (tmp_path / f"cand{k}").mkdir()
         copies.append(str(shutil.copy(f, tmp_path / f"cand{k}" / "policy.pt")))
-    small = ["--set", "design.lakes=1", "--set", "design.fleets=[5]", "--set", "design.starts=[random]",
-             "--set", "design.events=[none]", "--set", "design.episodes=2"]
+    small = ["--set", "yardstick.lakes=1", "--set", "yardstick.fleets=[5]", "--set", "yardstick.starts=[random]",
+             "--set", "yardstick.events=[none]", "--set", "yardstick.episodes=2"]
     out = tmp_path / "c.json"
     assert cli("--params", str(params_file), *small, "compare", "--candidate", *copies, "--out", str(out),
                cwd=tmp_path / "cand0").wait(timeout=600) == 0
@@ -299,11 +299,11 @@ def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp
     run = folder / "runs" / "general-s4"
     assert cli("--params", str(params_file), "train-general", "--seed", "4", "--out", str(run),
                "--no-progress").wait(timeout=300) == 0
-    raw["design"]["seeds"] = [2, 3, 4]
+    raw["yardstick"]["seeds"] = [2, 3, 4]
     params = write(raw)
-    with pytest.raises(ConfigError, match=r"seeds are \[2, 3\], design.seeds \[2, 3, 4\]"):
+    with pytest.raises(ConfigError, match=r"seeds are \[2, 3\], yardstick.seeds \[2, 3, 4\]"):
         standing_baseline(params, folder)
-    again = train_design(str(params_file), str(folder), str(tmp_path / "gains.json"), 1)
+    again = train_yardstick(str(params_file), str(folder), str(tmp_path / "gains.json"), 1)
     assert [r["skipped"] for r in again["runs"]] == [True, True, True] and len(standing_baseline(params, folder)) == 3
 
     raw["general"]["gamma"] = 0.95

@@ -29,7 +29,7 @@ PER_CONFIG = [
 ]
 SELECTING = ["fig_{c}_evaluation_square", "fig_{c}_evaluation_rectangle", "fig_{c}_evaluation_bedok"]
 ONCE = ["fig_agent_vs_region", "fig_overall_coverage", "fig_bedok_map"]
-OUTPUT_DIRS = ("runs", "metrics", "figures", "notebooks/executed", "policies", "design")
+OUTPUT_DIRS = ("runs", "metrics", "figures", "notebooks/executed", "policies", "yardstick")
 
 
 def expected_figures(configs, selecting=("tuned",)) -> set[str]:
@@ -75,12 +75,12 @@ def test_train_general_depends_on_every_training_value_but_not_the_suite():
 
 
 def test_the_standing_baseline_trains_as_the_general_policy_trains_on_its_own_seeds():
-    """`train_design` (the design yardstick's standing baseline) depends on what `train_general` depends on, with
-    its own notebook and design.seeds for general.seeds: a value that retrains the policy retrains the baseline."""
+    """`train_yardstick` (the yardstick's standing baseline) depends on what `train_general` depends on, with
+    its own notebook and yardstick.seeds for general.seeds: a value that retrains the policy retrains the baseline."""
     stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
-    general, design = stages["train_general"], stages["train_design"]
-    assert [p if p != "general.seeds" else "design.seeds" for p in general["params"]] == design["params"]
-    assert [d.replace("train_general", "train_design") for d in general["deps"]] == design["deps"]
+    general, design = stages["train_general"], stages["train_yardstick"]
+    assert [p if p != "general.seeds" else "yardstick.seeds" for p in general["params"]] == design["params"]
+    assert [d.replace("train_general", "train_yardstick") for d in general["deps"]] == design["deps"]
 
 
 def test_source_notebooks_are_stripped_and_short():
@@ -124,7 +124,7 @@ def test_dvc_repro_end_to_end(tmp_path):
                              n_envs=4, episodes=8, episode_length=10, learning_starts=50, batch_size=16,
                              buffer_size=1000, update_every=8, seeds=[0, 1])
     params["general"]["suite"].update(held_out=3, named_fleets=[5], lake_fleets=[6], starts=["random"], episodes=2)
-    params["design"].update(seeds=[2, 3], min_seeds=2)
+    params["yardstick"].update(seeds=[2, 3], min_seeds=2)
     params["pipeline"]["configs"] = ["paper", "tuned"]
     params["pipeline"]["ablation"] = True  # the experiment `dvc exp run -S pipeline.ablation=true`, here in one go
     params["configs"]["tuned"]["select_every"] = 25  # so the checkpoint_selection ablation has last actors
@@ -166,8 +166,9 @@ def test_dvc_repro_end_to_end(tmp_path):
     suite = json.loads((repo / "metrics" / "general.json").read_text())
     assert suite["seeds"][0] == f"s{json.loads((repo / 'policies' / 'summary.json').read_text())['kept_seed']}"
     assert all(set(c["seeds"]) == {"s0", "s1"} for c in suite["cells"])
-    standing = json.loads((repo / "design" / "summary.json").read_text())["runs"]
-    assert [r["seed"] for r in standing] == [2, 3] and all((repo / "design" / r["policy"]).is_file() for r in standing)
+    standing = json.loads((repo / "yardstick" / "summary.json").read_text())["runs"]
+    assert [r["seed"] for r in standing] == [2, 3]
+    assert all((repo / "yardstick" / r["policy"]).is_file() for r in standing)
     general = json.loads((repo / "metrics" / "tuning" / "general_baselines.json").read_text())
     assert {k: v["trials"] for k, v in general.items()} == {"naive_tuned": 2, "lloyd_tuned": 2}
     outline = json.loads((repo / "data" / "bedok_outline.geojson").read_text())

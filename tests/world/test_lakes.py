@@ -50,9 +50,9 @@ def test_training_lakes_never_meet_the_held_out_lakes():
 
 
 def test_design_lakes_are_neither_trained_on_nor_reported():
-    """The lakes where versions of a training are compared (``design.py``) come from a stream of their own."""
-    chosen_on = {s.seed for s in lakes.design(50)}
-    assert len(chosen_on) == 50 and lakes.design(3) == lakes.design(50)[:3]
+    """The lakes where versions of a training are compared (``compare.yardstick``) come from a stream of their own."""
+    chosen_on = {s.seed for s in lakes.yardstick(50)}
+    assert len(chosen_on) == 50 and lakes.yardstick(3) == lakes.yardstick(50)[:3]
     assert not chosen_on & {s.seed for s in lakes.held_out(50)}
     assert not chosen_on & {s.seed for s in lakes.training(500)}
 

@@ -2,7 +2,7 @@
 
 The lakes are the named regions (the square, the rectangle and Bedok) for the paper's 9 buoys, and the held-out
 generated lakes of ``lakes.held_out`` for their own N; a cell scales its lake to the fleet's density
-(``at_density``). The design yardstick (``yardstick``) sizes its events as the suite does.
+(``at_density``). The yardstick (``yardstick``) sizes its events as the suite does.
 """
 
 from __future__ import annotations

@@ -1,15 +1,15 @@
-"""The design yardstick: where two versions of the general training (a sensor, a value, a network) are compared
+"""The yardstick: where two versions of the general training (a sensor, a value, a network) are compared
 before one is kept.
 
 Each version is given as the exported policies of several training seeds. They run, zero-shot and on the same
-episodes, on lakes of a seed stream of their own (``lakes.design``): never trained on, and never the held-out
-lakes the report judges the kept version on. A cell is one lake × fleet × start × event (``DesignCell``); a
+episodes, on lakes of a seed stream of their own (``lakes.yardstick``): never trained on, and never the held-out
+lakes the report judges the kept version on. A cell is one lake × fleet × start × event (``YardstickCell``); a
 policy's score is its mean over the cells of its coverage / ``lloyd_tuned``'s, Lloyd run on the same starts and
 events with the gains the policies carry. The candidate is kept when the bootstrap interval of its gain lies above
-``design.min_gain`` with the training seed as the unit: one seed moves every cell at once, so an interval over
+``yardstick.min_gain`` with the training seed as the unit: one seed moves every cell at once, so an interval over
 cells is too narrow (``docs/GENERAL.md``, "Choosing on lakes of their own", has the case that showed it).
-The baseline version is by default the standing one (``STANDING``, stage ``train_design``): the current values on
-the tuning seeds of ``design.seeds``, so that a candidate trains only its own seeds.
+The baseline version is by default the standing one (``STANDING``, stage ``train_yardstick``): the current values on
+the tuning seeds of ``yardstick.seeds``, so that a candidate trains only its own seeds.
 """
 
 from __future__ import annotations
@@ -30,14 +30,14 @@ from replicate.core.params import Params, load_params
 from replicate.core.schema import ConfigError
 from replicate.learn.process import training_process
 from replicate.learn.runs import SEED_POLICY, finished_general, general_identity, seed_folder
-from replicate.world.lakes import design
+from replicate.world.lakes import yardstick
 from replicate.world.regions import Region
 from replicate.world.scenario import named_lakes
 
 
 @dataclass(frozen=True)
-class DesignCell:
-    """One cell of the design yardstick: a lake of ``lakes.design``, a fleet, a start and an event."""
+class YardstickCell:
+    """One cell of the yardstick: a lake of ``lakes.yardstick``, a fleet, a start and an event."""
 
     lake: str
     n_agents: int
@@ -46,7 +46,7 @@ class DesignCell:
 
 
 SIDES = ("baseline", "candidate")
-STANDING = "design"  # the standing baseline's folder (stage train_design), beside the parameters file
+STANDING = "yardstick"  # the standing baseline's folder (stage train_yardstick), beside the parameters file
 
 
 @dataclass(frozen=True)
@@ -73,38 +73,38 @@ class Versions:
         return {SeedPolicy(side, i): path for side in SIDES for i, path in enumerate(getattr(self, side), start=1)}
 
 
-def design_lakes(params: Params) -> dict[str, tuple[Region, int]]:
+def yardstick_lakes(params: Params) -> dict[str, tuple[Region, int]]:
     """The yardstick's lakes → (region, the fleet it is drawn for)."""
 
-    return named_lakes(params, design(params.design.lakes))
+    return named_lakes(params, yardstick(params.yardstick.lakes))
 
 
-def design_cells(params: Params) -> list[DesignCell]:
+def yardstick_cells(params: Params) -> list[YardstickCell]:
     """Every cell of the yardstick, lake by lake."""
-    d = params.design
-    return [DesignCell(lake, n, start, event) for lake in design_lakes(params) for n in d.fleets
+    d = params.yardstick
+    return [YardstickCell(lake, n, start, event) for lake in yardstick_lakes(params) for n in d.fleets
             for start in d.starts for event in d.events]
 
 
 def standing_baseline(params: Params, folder: Path) -> tuple[str, ...]:
-    """The exported policies of the standing baseline in ``folder`` (``pipeline.general.train_design``: the
-    general training's current values on ``design.seeds``), refused by name when it is missing, unreadable, of
-    other seeds than ``design.seeds`` or trained with other values than ``params`` (its runs' identities must
+    """The exported policies of the standing baseline in ``folder`` (``pipeline.general.train_yardstick``: the
+    general training's current values on ``yardstick.seeds``), refused by name when it is missing, unreadable, of
+    other seeds than ``yardstick.seeds`` or trained with other values than ``params`` (its runs' identities must
     match: a stale baseline would credit or blame the candidate for every change made since)."""
 
-    retrain = "`dvc repro train_design` trains it again, or give --baseline"
+    retrain = "`dvc repro train_yardstick` trains it again, or give --baseline"
     summary = folder / "summary.json"
     if not summary.is_file():
         raise ConfigError(f"{summary}: no standing baseline here (it is read beside the parameters file); train it "
-                          "with `dvc repro train_design`, or give --baseline with the policies of each seed")
+                          "with `dvc repro train_yardstick`, or give --baseline with the policies of each seed")
     try:
         seeds = [run["seed"] for run in json.loads(summary.read_text())["runs"]]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ConfigError(f"{summary}: not a standing baseline's summary ({type(exc).__name__}: {exc}); "
                           f"{retrain}") from None
-    if seeds != list(params.design.seeds):
-        raise ConfigError(f"{summary}: the standing baseline's seeds are {seeds}, design.seeds "
-                          f"{list(params.design.seeds)}; {retrain}")
+    if seeds != list(params.yardstick.seeds):
+        raise ConfigError(f"{summary}: the standing baseline's seeds are {seeds}, yardstick.seeds "
+                          f"{list(params.yardstick.seeds)}; {retrain}")
     for seed in seeds:
         run = seed_folder(folder, seed)
         try:
@@ -124,8 +124,8 @@ def check_versions(versions: Versions, min_seeds: int) -> None:
 
     for side in SIDES:
         if len(getattr(versions, side)) < min_seeds:
-            raise ConfigError(f"--{side}: give the policies of at least {min_seeds} training seeds (design.min_seeds: "
-                              f"the interval resamples seeds, and fewer make it too narrow), got "
+            raise ConfigError(f"--{side}: give the policies of at least {min_seeds} training seeds "
+                              "(yardstick.min_seeds: the interval resamples seeds, and fewer make it too narrow), got "
                               f"{len(getattr(versions, side))}")
     files = versions.files()
     if len({str(Path(p).resolve()) for p in files.values()}) < len(files):
@@ -148,7 +148,7 @@ def check_versions(versions: Versions, min_seeds: int) -> None:
     if differ:
         raise ConfigError(f"{differ[0]}: carries other baseline gains than {first}; export every policy with the "
                           "same `--baseline-gains` file, so that both versions are read against the same Lloyd (the "
-                          "standing baseline in design/ is exported again by `dvc repro train_design`)")
+                          "standing baseline in yardstick/ is exported again by `dvc repro train_yardstick`)")
 
 
 def _yardstick_lake(job: dict) -> list[dict]:
@@ -156,13 +156,13 @@ def _yardstick_lake(job: dict) -> list[dict]:
 
     training_process()
     params = load_params(job["params"], job["overrides"])
-    d, su = params.design, params.general.suite
+    d, su = params.yardstick, params.general.suite
     params = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=d.episodes,
                                                                       seed=d.seed))
-    region, drawn_for = design_lakes(params)[job["lake"]]
+    region, drawn_for = yardstick_lakes(params)[job["lake"]]
     (first, path), *others = job["policies"].items()
     rows = []
-    for cell in map(lambda c: DesignCell(**c), job["cells"]):
+    for cell in map(lambda c: YardstickCell(**c), job["cells"]):
         lose, current = suite_event(su, cell.event, cell.n_agents)
         r = evaluate_policy(path, at_density(region, drawn_for, cell.n_agents), params, cell.n_agents, cell.start,
                             lose, current, seeds=dict(others), geodesic=False, naive=False, best_layout=False)
@@ -193,35 +193,35 @@ def side_means(scores: dict[SeedPolicy, float]) -> dict[str, float]:
 def verdict(scores: dict[SeedPolicy, float], params: Params) -> dict:
     """The rule, applied: Δ = mean candidate score − mean baseline score, its bootstrap interval over training
     seeds (``report``'s level, resamples and seed) and P(a candidate seed beats a baseline seed); the candidate
-    is kept when the interval lies above ``design.min_gain``."""
+    is kept when the interval lies above ``yardstick.min_gain``."""
     r = params.report
     boot = stats.Bootstrap(r.level, r.resamples, r.seed)
     base, cand = side_scores(scores, "baseline"), side_scores(scores, "candidate")
     diff = stats.difference([cand], [base], boot)
     better = stats.probability_of_improvement([cand], [base], boot)
-    keep = diff["lo"] > params.design.min_gain
-    return {"difference": diff, "probability_of_improvement": better, "min_gain": params.design.min_gain,
+    keep = diff["lo"] > params.yardstick.min_gain
+    return {"difference": diff, "probability_of_improvement": better, "min_gain": params.yardstick.min_gain,
             "keep": "candidate" if keep else "baseline",
             "rule": f"keep the candidate iff the {r.level:.0%} bootstrap interval over training seeds of its mean "
-                    f"coverage / lloyd_tuned minus the baseline's lies above {params.design.min_gain:+g}"}
+                    f"coverage / lloyd_tuned minus the baseline's lies above {params.yardstick.min_gain:+g}"}
 
 
 def compare_versions(params_path: str, versions: Versions, workers: int = 1, executor: str = "local",
                      overrides: dict | None = None) -> dict:
-    """Both versions on every cell of the design yardstick (one job per lake), each seed's score and the
+    """Both versions on every cell of the yardstick (one job per lake), each seed's score and the
     verdict. → {cells, scores, verdict, by_event}: ``by_event`` gives each version's mean score per event."""
     params = load_params(params_path, overrides)
-    check_versions(versions, params.design.min_seeds)
+    check_versions(versions, params.yardstick.min_seeds)
     policies = versions.files()
-    cells = design_cells(params)
+    cells = yardstick_cells(params)
     jobs = [{"params": params_path, "overrides": overrides or {}, "lake": lake, "policies": policies,
              "cells": [dataclasses.asdict(c) for c in cells if c.lake == lake]}
             for lake in dict.fromkeys(c.lake for c in cells)]
     rows = [row for lake_rows in map_jobs(_yardstick_lake, jobs, executor, workers) for row in lake_rows]
     scores = seed_scores(rows, list(policies))
     by_event = {event: side_means(seed_scores([r for r in rows if r["event"] == event], list(policies)))
-                for event in params.design.events}
-    return {"policies": labelled(policies), "design": dataclasses.asdict(params.design),
+                for event in params.yardstick.events}
+    return {"policies": labelled(policies), "yardstick": dataclasses.asdict(params.yardstick),
             "cells": [row | {"coverage": labelled(row["coverage"])} for row in rows], "scores": labelled(scores),
             "by_event": by_event, "verdict": verdict(scores, params)}
 

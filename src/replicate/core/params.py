@@ -20,7 +20,6 @@ from replicate.core.sections import (
     AlgoConfig,
     CoverageConfig,
     CRRewardConfig,
-    DesignConfig,
     GeneralConfig,
     MethodConfig,
     RegionSpec,
@@ -28,6 +27,7 @@ from replicate.core.sections import (
     SWRewardConfig,
     TrainConfig,
     WorldConfig,
+    YardstickConfig,
 )
 from replicate.core.studies import AblationConfig, EvaluateConfig, ReportConfig, TuningConfig
 
@@ -61,7 +61,7 @@ class Params:
     tuning: TuningConfig
     report: ReportConfig
     general: GeneralConfig
-    design: DesignConfig
+    yardstick: YardstickConfig
     stages: dict[str, Any] = field(default_factory=dict)
 
     @model_validator(mode="after")
@@ -89,8 +89,8 @@ class Params:
                               f"radius), got {self.evaluate.geodesic.spacing}")
         if unknown := sorted(set(self.general.regions) - set(self.regions)):
             raise ConfigError(f"general.regions: unknown region(s) {unknown}; known: {sorted(self.regions)}")
-        if reported := sorted(set(self.design.seeds) & set(self.general.seeds)):
-            raise ConfigError(f"design.seeds: {reported} also in general.seeds; the standing baseline's seeds are "
+        if reported := sorted(set(self.yardstick.seeds) & set(self.general.seeds)):
+            raise ConfigError(f"yardstick.seeds: {reported} also in general.seeds; the standing baseline's seeds are "
                               "never the reported ones, choose others")
         return self
 

@@ -1,6 +1,6 @@
 """The sections of ``params.yaml`` that make the world and the training: the world and its coverage, the rewards,
 the methods and training configs, the regions, the training schedule, and the general policy (its worlds, sensors,
-learner, evaluation suite) with the design yardstick's lakes.
+learner, evaluation suite) with the yardstick's lakes.
 
 Each value's type and range stand beside it (``schema``); a rule that ties two values together is the section's
 ``check``. YAML holds the values, these sections the types (BenchMARL style).
@@ -235,12 +235,12 @@ class SuiteConfig:
 
 
 @section
-class DesignConfig:
-    """The design yardstick (``compare.yardstick``): where two versions of the general training are compared before
-    one is kept, on lakes of a seed stream of their own (``lakes.design``: never trained on, never reported), with
+class YardstickConfig:
+    """The yardstick (``compare.yardstick``): where two versions of the general training are compared before
+    one is kept, on lakes of a seed stream of their own (``lakes.yardstick``: never trained on, never reported), with
     the training seed as the unit."""
 
-    lakes: Count  # generated lakes of ``lakes.design``, each at its own density
+    lakes: Count  # generated lakes of ``lakes.yardstick``, each at its own density
     fleets: tuple[Fleet, ...]  # N on every lake
     starts: tuple[Text, ...]  # of ``START_KINDS``
     events: tuple[Text, ...]  # of ``EVENTS``, sized as the suite's (``general.suite.lose_fraction``, ``current``)
@@ -248,18 +248,18 @@ class DesignConfig:
     seed: Seed  # the evaluation starts: not ``evaluate.seed``, whose starts are reported
     min_seeds: Annotated[Int, In(2)]  # training seeds a version needs: fewer make the interval over seeds too narrow
     min_gain: Annotated[Num, In(-1, 1)]  # the candidate is kept when the interval of its gain lies above this
-    seeds: tuple[Seed, ...]  # the standing baseline's training seeds (``train_design``): never reported
+    seeds: tuple[Seed, ...]  # the standing baseline's training seeds (``train_yardstick``): never reported
 
     @model_validator(mode="after")
     def check(self):
         for name, values in (("fleets", self.fleets), ("starts", self.starts)):
             if not values or len(set(values)) < len(values):
-                raise ConfigError(f"design.{name}: at least one, each once, got {list(values)}")
-        check_starts(self.starts, "design.starts")
+                raise ConfigError(f"yardstick.{name}: at least one, each once, got {list(values)}")
+        check_starts(self.starts, "yardstick.starts")
         if not self.events or not set(self.events) <= set(EVENTS) or len(set(self.events)) < len(self.events):
-            raise ConfigError(f"design.events: any of {list(EVENTS)}, each once, got {list(self.events)}")
+            raise ConfigError(f"yardstick.events: any of {list(EVENTS)}, each once, got {list(self.events)}")
         if len(set(self.seeds)) < len(self.seeds) or len(self.seeds) < self.min_seeds:
-            raise ConfigError(f"design.seeds: at least design.min_seeds ({self.min_seeds}) seeds, each once, got "
+            raise ConfigError(f"yardstick.seeds: at least yardstick.min_seeds ({self.min_seeds}) seeds, each once, got "
                               f"{list(self.seeds)}")
         return self
 

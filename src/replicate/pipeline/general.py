@@ -5,8 +5,8 @@ Layout: ``OUT/runs/general-sSEED/{actor.pt, curve.csv.gz, run.json}`` (``general
 seed's exported policy, carrying the baselines' gains of ``tuning.general_baselines``), ``OUT/general.pt`` (the
 policy of the seed with the best validation coverage, the one a user deploys) and ``OUT/summary.json`` (each
 seed's validation, time and policy, the one kept). A seed already finished with identical settings is kept, so
-adding seeds trains only the new ones. The same training on the tuning seeds of ``design.seeds`` is the design
-yardstick's standing baseline (``train_design``, the same layout without ``general.pt``).
+adding seeds trains only the new ones. The same training on the tuning seeds of ``yardstick.seeds`` is the
+yardstick's standing baseline (``train_yardstick``, the same layout without ``general.pt``).
 """
 
 from __future__ import annotations
@@ -84,15 +84,15 @@ def train_general(params_path: str, out_dir: str, gains_path: str | None, worker
     return with_stage_times(summary, runs, wall)
 
 
-def train_design(params_path: str, out_dir: str, gains_path: str | None, workers: int,
+def train_yardstick(params_path: str, out_dir: str, gains_path: str | None, workers: int,
                  executor: str = "local") -> dict:
-    """The design yardstick's standing baseline: the general training's current values on the tuning seeds of
-    ``design.seeds`` (never reported), trained and exported as ``train_general`` does, into ``OUT/runs`` and
+    """The yardstick's standing baseline: the general training's current values on the tuning seeds of
+    ``yardstick.seeds`` (never reported), trained and exported as ``train_general`` does, into ``OUT/runs`` and
     ``OUT/summary.json``; ``replicate compare`` reads it when no ``--baseline`` is given, so a candidate trains
     only its own seeds. → the summary, with the stage's wall time and which seeds were kept."""
     params = load_params(params_path)
     out = Path(out_dir)
-    runs, wall = train_seeds(params_path, out, params.design.seeds, gains_path, workers, executor)
+    runs, wall = train_seeds(params_path, out, params.yardstick.seeds, gains_path, workers, executor)
     summary = {"runs": seed_rows(runs)}
     artifacts.write_json(out / "summary.json", summary)
     return with_stage_times(summary, runs, wall)

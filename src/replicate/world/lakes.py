@@ -5,9 +5,9 @@ shore outwards) and islands (small blobs cut out well inside), scaled so that N 
 ``ratio`` of its area: N·A(Cov)/A(Reg) from about 0.5 (more water than the fleet can cover) to 1.2 (more fleet
 than water). Every draw comes from the ``numpy.random.Generator`` of the lake's seed, so a seed is a lake.
 
-``held_out`` is the evaluation suite's fixed set of lakes, ``training`` the training set and ``design`` the lakes
+``held_out`` is the evaluation suite's fixed set of lakes, ``training`` the training set and ``yardstick`` the lakes
 on which two versions of a training are compared; each comes from a seed stream of its own (``HELD_OUT_ENTROPY``,
-``TRAINING_ENTROPY``, ``DESIGN_ENTROPY``), so no held-out lake is trained on or chosen on.
+``TRAINING_ENTROPY``, ``YARDSTICK_ENTROPY``), so no held-out lake is trained on or chosen on.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from shapely.geometry.polygon import orient
 from replicate.world.regions import Region
 
 HELD_OUT_ENTROPY = 20_261_018  # the held-out lakes' seed stream
-DESIGN_ENTROPY = 41_170_093  # the design lakes' seed stream: choices between trainings are made here
+YARDSTICK_ENTROPY = 41_170_093  # the yardstick's seed stream: choices between trainings are made here
 TRAINING_ENTROPY = 7_310_442  # the training lakes' seed stream: the same lakes for every seed of a training
 VERTICES = 96  # of a blob's outline
 
@@ -132,11 +132,11 @@ def held_out(count: int = 20, **draw) -> list[LakeSpec]:
     return [draw_spec(rng, **draw) for _ in range(count)]
 
 
-def design(count: int = 10, **draw) -> list[LakeSpec]:
-    """The design yardstick's lakes (``compare.yardstick``): ``count`` recipes from a stream of their own, on which two
+def yardstick(count: int = 10, **draw) -> list[LakeSpec]:
+    """The yardstick's lakes (``compare.yardstick``): ``count`` recipes from a stream of their own, on which two
     versions of a training are compared before one is kept, so that the choice never reads a lake the report
     judges it on (the held-out lakes) or one it trained on."""
-    rng = np.random.default_rng(np.random.SeedSequence(DESIGN_ENTROPY))
+    rng = np.random.default_rng(np.random.SeedSequence(YARDSTICK_ENTROPY))
     return [draw_spec(rng, **draw) for _ in range(count)]
 
 

@@ -1,4 +1,4 @@
-"""``replicate compare``: Two versions of the general training, several seeds each, on the design yardstick."""
+"""``replicate compare``: Two versions of the general training, several seeds each, on the yardstick."""
 
 from __future__ import annotations
 
@@ -16,16 +16,16 @@ from replicate.toolkit.cli.inputs import (
 
 def add(sub, verb: dict, regions: str) -> None:
     """The ``compare`` verb's options."""
-    v = sub.add_parser("compare", help="two versions of the general training, several seeds each, on the design "
+    v = sub.add_parser("compare", help="two versions of the general training, several seeds each, on the yardstick's "
                        "lakes (never trained on, never reported): keep the candidate only if it wins over seeds",
                        **verb)
     v.add_argument("--baseline", nargs="+", default=None, metavar="POLICY",
                    help="the baseline version's exported policies, one per training seed (at least "
-                        "design.min_seeds; default: the standing baseline in design/ beside --params, the current "
-                        "training values on design.seeds, written by the train_design stage)")
+                        "yardstick.min_seeds; default: the standing baseline in yardstick/ beside --params, the "
+                        "current training values on yardstick.seeds, written by the train_yardstick stage)")
     v.add_argument("--candidate", nargs="+", required=True, metavar="POLICY",
                    help="the candidate version's exported policies, one per training seed (at least "
-                        "design.min_seeds)")
+                        "yardstick.min_seeds)")
     v.add_argument("--out", required=True, help="output JSON: every cell, each seed's score and the verdict")
     v.add_argument("--force", action="store_true", help="replace --out if it exists")
     v.add_argument("--workers", type=int, default=None, help="processes, one lake each (default: pipeline.workers)")
@@ -36,7 +36,7 @@ def add(sub, verb: dict, regions: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Two versions of the general training, several seeds each, on the design yardstick (``compare.yardstick``)."""
+    """Two versions of the general training, several seeds each, on the yardstick (``compare.yardstick``)."""
     from replicate.compare.yardstick import STANDING, Versions, check_versions, compare_versions, standing_baseline
     from replicate.core.executor import configured_executor
 
@@ -45,15 +45,16 @@ def run(args: argparse.Namespace) -> int:
     versions = Versions(baseline, tuple(args.candidate))
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {args.workers}")
-    check_versions(versions, params.design.min_seeds)
+    check_versions(versions, params.yardstick.min_seeds)
     out = claim_out_file(Path(args.out), args.force, held=args.held)
     workers = args.workers or params.stages.get("pipeline", {}).get("workers", 1)
     executor = configured_executor(params, args.executor)
-    d = params.design
+    d = params.yardstick
     standing = "" if args.baseline else f" (the baseline: {STANDING}/)"
     runs_on = f"{workers} worker(s)" if executor == "local" else "Ray tasks"
-    print(f"{d.lakes * len(d.fleets) * len(d.starts) * len(d.events)} cells (design lakes x fleets x starts x events), "
-          f"{len(baseline) + len(args.candidate)} policies{standing}, {runs_on}")
+    cells = d.lakes * len(d.fleets) * len(d.starts) * len(d.events)
+    print(f"{cells} cells (yardstick lakes x fleets x starts x events), {len(baseline) + len(args.candidate)} "
+          f"policies{standing}, {runs_on}")
     result = compare_versions(args.params, versions, workers, executor, overrides(args.set))
     artifacts.write_json(out, result)
     for label, score in result["scores"].items():

@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(f"--out {out}: holds a run already; choose a new folder or pass --force to replace it")
         args.held.enter_context(replacing(out))  # the old run stays until the new one is complete
     training_process()
-    # recorded as the stages record a seed: train_general or train_design keeps this run when its values match
+    # recorded as the stages record a seed: train_general or train_yardstick keeps this run when its values match
     summary = train_recorded(dataclasses.replace(params, general=config), args.seed, out, not args.no_progress)
     print(f"best validation coverage {summary['selected_validation_coverage']:.3f} at episode "
           f"{summary['selected_episode']}; wrote {out} (`replicate export {out}` makes its policy file)")
