@@ -86,3 +86,21 @@ def test_ray_runs_optuna_trials_as_tasks(ray_local, tmp_path):
 def test_an_unknown_executor_is_refused_by_name():
     with pytest.raises(ConfigError, match="executor must be one of local, ray, got 'dask'"):
         executor.map_jobs(len, [[1]], "dask")
+
+
+def test_ctrl_c_stops_the_workers_at_once(tmp_path):
+    """Ctrl-C to the main process alone (as a supervisor sends it) ends a map of long jobs within seconds: its
+    worker processes are terminated, not waited for."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    code = ("import time; from replicate.core.executor import map_jobs; "
+            "map_jobs(time.sleep, [60, 60], 'local', 2)")
+    proc = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE, text=True)
+    time.sleep(1.5)  # the workers are sleeping
+    start = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    proc.wait(timeout=30)
+    assert time.monotonic() - start < 10 and "KeyboardInterrupt" in proc.stderr.read()

@@ -207,7 +207,7 @@ def verdict(scores: dict[SeedPolicy, float], params: Params) -> dict:
 
 
 def compare_versions(params_path: str, versions: Versions, workers: int = 1, executor: str = "local",
-                     overrides: dict | None = None) -> dict:
+                     overrides: dict | None = None, progress: bool = False) -> dict:
     """Both versions on every cell of the yardstick (one job per lake), each seed's score and the
     verdict. → {cells, scores, verdict, by_event}: ``by_event`` gives each version's mean score per event."""
     params = load_params(params_path, overrides)
@@ -217,7 +217,8 @@ def compare_versions(params_path: str, versions: Versions, workers: int = 1, exe
     jobs = [{"params": params_path, "overrides": overrides or {}, "lake": lake, "policies": policies,
              "cells": [dataclasses.asdict(c) for c in cells if c.lake == lake]}
             for lake in dict.fromkeys(c.lake for c in cells)]
-    rows = [row for lake_rows in map_jobs(_yardstick_lake, jobs, executor, workers) for row in lake_rows]
+    shown = "yardstick lakes" if progress else None
+    rows = [row for rows_of in map_jobs(_yardstick_lake, jobs, executor, workers, shown) for row in rows_of]
     scores = seed_scores(rows, list(policies))
     by_event = {event: side_means(seed_scores([r for r in rows if r["event"] == event], list(policies)))
                 for event in params.yardstick.events}

@@ -12,10 +12,12 @@ needs this package installed (``pip install '.[ray]'``), since the jobs are its 
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import sys
 from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor
+
+from tqdm.auto import tqdm
 
 from replicate.core.schema import ConfigError
 
@@ -34,16 +36,35 @@ def configured_executor(params, requested: str | None = None) -> str:
     return check_executor(requested or params.stages.get("pipeline", {}).get("executor", "local"))
 
 
-def map_jobs(fn: Callable, jobs: Iterable, executor: str = "local", workers: int = 1) -> list:
+def map_jobs(fn: Callable, jobs: Iterable, executor: str = "local", workers: int = 1,
+             progress: str | None = None) -> list:
     """``[fn(job) for job in jobs]``, in the order of ``jobs``: with ``local`` in ``workers`` processes of this
-    machine, with ``ray`` as one Ray task of one CPU per job (the cluster's CPUs set how many run at once)."""
+    machine, with ``ray`` as one Ray task of one CPU per job (the cluster's CPUs set how many run at once).
+    ``progress`` names a bar of the jobs done (a command's; the pipeline's stages show none). An error or Ctrl-C
+    stops the workers at once: the local pool is terminated, Ray's tasks are cancelled."""
     jobs = list(jobs)
-    if check_executor(executor) == "ray":
-        ray = ray_runtime()
-        task = ray.remote(num_cpus=1, max_retries=0)(apply)
-        return ray.get([task.remote(fn, job) for job in jobs])
-    with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
-        return list(pool.map(fn, jobs))
+    bar = tqdm(total=len(jobs), desc=progress, unit="job", disable=progress is None, leave=False)
+    with bar:
+        if check_executor(executor) == "ray":
+            ray = ray_runtime()
+            task = ray.remote(num_cpus=1, max_retries=0)(apply)
+            refs = [task.remote(fn, job) for job in jobs]
+            try:
+                pending = list(refs)
+                while pending:
+                    done, pending = ray.wait(pending, num_returns=1)
+                    bar.update(len(done))
+                return ray.get(refs)
+            except BaseException:
+                for ref in refs:
+                    ray.cancel(ref, force=True)
+                raise
+        with multiprocessing.Pool(max(1, workers)) as pool:  # leaving the block terminates the workers
+            results = []
+            for result in pool.imap(fn, jobs):
+                results.append(result)
+                bar.update()
+            return results
 
 
 def apply(fn: Callable, job):

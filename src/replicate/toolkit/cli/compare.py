@@ -28,6 +28,7 @@ def add(sub, verb: dict, regions: str) -> None:
                         "yardstick.min_seeds)")
     v.add_argument("--out", required=True, help="output JSON: every cell, each seed's score and the verdict")
     v.add_argument("--force", action="store_true", help="replace --out if it exists")
+    v.add_argument("--no-progress", action="store_true", help="no progress bar")
     v.add_argument("--workers", type=int, default=None, help="processes, one lake each (default: pipeline.workers)")
     v.add_argument("--executor", choices=("local", "ray"), default=None,
                    help="local processes or Ray tasks (default: pipeline.executor)")
@@ -55,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     cells = d.lakes * len(d.fleets) * len(d.starts) * len(d.events)
     print(f"{cells} cells (yardstick lakes x fleets x starts x events), {len(baseline) + len(args.candidate)} "
           f"policies{standing}, {runs_on}")
-    result = compare_versions(args.params, versions, workers, executor, overrides(args.set))
+    result = compare_versions(args.params, versions, workers, executor, overrides(args.set), not args.no_progress)
     artifacts.write_json(out, result)
     for label, score in result["scores"].items():
         print(f"{label} {result['policies'][label]}: coverage / lloyd_tuned {score:.4f}")
