@@ -18,7 +18,7 @@
 3. Environment throughput (agent-steps per second, random actions) at E = 1, 50 and 1,024 environments, with the
    CR reward on the square and with the shore wall on Bedok, against PettingZoo MPE2 ``simple_spread_v3`` (N = 9,
    continuous actions, one environment) and VMAS ``simple_spread`` (9 agents, the same E), as ratios.
-4. The allocator setting of the training processes (``train.hold_freed_memory``): ``paper``'s CR-MARL stack of
+4. The allocator setting of the training processes (``process.hold_freed_memory``): ``paper``'s CR-MARL stack of
    seeds trained in fresh processes with glibc's default allocator against the held one, one process alone and
    two side by side (as the pipeline runs them); time per update, page faults, and the ratios.
 5. BenchMARL 1.5.2 MADDPG on VMAS ``simple_spread`` against the project's MADDPG, both on the ``paper`` schedule:

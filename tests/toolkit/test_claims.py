@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from replicate.core.claims import lock_path
+from replicate.core.outputs import lock_path
 
 from ..command import cli
 

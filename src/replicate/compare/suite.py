@@ -20,7 +20,7 @@ from replicate.world.scenario import named_lakes
 @dataclass(frozen=True)
 class SuiteCell:
     """One cell of the generalisation table: a lake (a named region or a held-out lake), a fleet, a start, an
-    event (``config.EVENTS``: still water, a share of the fleet lost at T/2, a uniform drift)."""
+    event (``core.sections.EVENTS``: still water, a share of the fleet lost at T/2, a uniform drift)."""
 
     region: str
     n_agents: int

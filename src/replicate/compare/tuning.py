@@ -117,7 +117,7 @@ def run_trials(study, score: Callable[[dict], tuple[float, float]], space: dict[
     the committed studies were run in). ``ray``: batches of as many trials as the cluster has CPUs, each trial a
     Ray task (TPE draws a batch before it sees its results). Any number of processes may work on one study at
     once through a shared storage URL. Each trial records its CPU seconds and the arithmetic fingerprint of the
-    process running the sampler (``arithmetic.search_fingerprint``) as user attributes."""
+    process running the sampler (``fingerprint.search_fingerprint``) as user attributes."""
     import optuna
 
     def finished() -> int:
@@ -212,7 +212,7 @@ _GENERAL_WORLDS: dict[str, list] = {}
 
 
 def general_worlds(params: Params) -> list:
-    """(region, world env) of every world of ``worlds.baseline_worlds``, behind the wall, with half the
+    """(region, world env) of every world of ``training_worlds.baseline_worlds``, behind the wall, with half the
     study's starts as environments; built once per process and setting (a lake's geometry takes seconds)."""
 
     gc, starts = params.general, params.tuning.general_baselines.starts

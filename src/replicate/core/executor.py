@@ -2,7 +2,7 @@
 (``ray``), chosen by ``pipeline.executor`` in params.yaml or a command's ``--executor``.
 
 A job is a module-level function applied to a small picklable description (a training cell, an evaluation, an
-Optuna trial's values). Each job starts by setting its own process-wide state (``train.training_process``), so a
+Optuna trial's values). Each job starts by setting its own process-wide state (``learn.process.training_process``), so a
 job computes the same bytes in a fresh local process as in a Ray worker; ``tests/core/test_executor.py`` checks that a
 training matrix through a local Ray runtime gives the local executor's curves and actors.
 

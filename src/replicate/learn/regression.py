@@ -3,7 +3,7 @@ fixed seed, compared with the reference CSVs in ``tests/reference/`` (``params.y
 
 Regenerate the references on purpose, after a change that is meant to alter the curves::
 
-    make reference        # = python -m replicate.regression --write tests/reference
+    make reference        # = python -m replicate.learn.regression --write tests/reference
 """
 
 from __future__ import annotations

@@ -165,7 +165,7 @@ class FleetReplay:
 
 
 class FleetNStep(NStepWriter):
-    """``maddpg.NStepWriter`` for a ``FleetReplay``: a step also carries the buoys in service (``live``) and their
+    """``NStepWriter`` for a ``FleetReplay``: a step also carries the buoys in service (``live``) and their
     positions (``pos``, ``next_pos``); a transition bootstraps with the buoys in service after its last step, so a
     buoy lost in between is not bootstrapped (its rewards after the loss are 0, its future none)."""
 

@@ -94,7 +94,7 @@ class CompassSymmetric(nn.Module):
 
 
 def symmetric(net: nn.Module, columns: list[str], group: str) -> nn.Module:
-    """``net`` averaged over ``group`` (``config.Symmetry``: "none" leaves it as it is) for observations with
+    """``net`` averaged over ``group`` (``core.sections.Symmetry``: "none" leaves it as it is) for observations with
     ``columns``."""
     if group == "none":
         return net

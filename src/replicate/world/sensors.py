@@ -168,7 +168,7 @@ def columns(k: int, rays: int, uncovered: bool = False) -> list[str]:
 
 def describe(config) -> list[dict]:
     """Each sensor of ``local_observation`` as the exported policy's metadata lists it: its function, its columns,
-    its settings (``config``: a ``config.SensorsConfig``)."""
+    its settings (``config``: a ``core.sections.SensorsConfig``)."""
     k, rays = config.neighbours, config.rays
     names = columns(k, rays, bool(config.uncovered))
     described = [

@@ -89,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # Ctrl-C while the command starts: one line, as later
         return interrupted(None)
     try:
-        with ExitStack() as held:  # the outputs this command claims (``core.claims``), released however it ends
+        with ExitStack() as held:  # the outputs this command claims (``core.outputs``), released however it ends
             args.held = held
             return args.func(args)
     except (ConfigError, RegionError, CheckpointError, OSError, ValueError) as exc:

@@ -31,7 +31,8 @@ def add(sub, verb: dict, regions: str) -> None:
     e.add_argument("--region", default=None, help=f"{regions} (default: the run's own)")
     e.add_argument("--config", default="paper", help="a baseline runs with this config's physics and T")
     e.add_argument("--out", default=None,
-                   help="output JSON (default: RUN/metrics.json, or my-runs/baseline-NAME-REGION.json)")
+                   help="output JSON (default: RUN/metrics.json, my-runs/baseline-NAME-REGION.json or, with "
+                        "--policy, my-runs/policy-REGION-nN.json)")
     e.add_argument("--force", action="store_true", help="replace --out if it exists")
     e.add_argument("--no-progress", action="store_true", help="no progress bars")
     g = e.add_argument_group("a general policy, zero-shot on any region (instead of a run)")

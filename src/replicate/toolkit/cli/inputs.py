@@ -11,7 +11,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 from replicate.core.artifacts import CheckpointError
-from replicate.core.claims import locked, remove, replacing
+from replicate.core.outputs import locked, remove, replacing
 from replicate.core.params import Params
 from replicate.core.schema import ConfigError
 from replicate.world.regions import (

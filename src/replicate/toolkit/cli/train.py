@@ -10,7 +10,7 @@ from pathlib import Path
 
 from replicate.core import artifacts
 from replicate.core.artifacts import CheckpointError
-from replicate.core.claims import locked
+from replicate.core.outputs import locked
 from replicate.core.params import Params, load_params, run_config
 from replicate.core.schema import ConfigError, check_seed
 from replicate.toolkit.cli.inputs import (

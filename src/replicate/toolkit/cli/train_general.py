@@ -30,7 +30,7 @@ def add(sub, verb: dict, regions: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """``train-general``: one seed of the general policy into ``--out`` (no checkpoints: an interrupted run starts
     again; 3,000 episodes take about half an hour of one core)."""
-    from replicate.core.claims import locked, replacing
+    from replicate.core.outputs import locked, replacing
     from replicate.learn.general_train import train_recorded
     from replicate.learn.process import training_process
 
