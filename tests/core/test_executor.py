@@ -96,11 +96,15 @@ def test_ctrl_c_stops_the_workers_at_once(tmp_path):
     import sys
     import time
 
-    code = ("import time; from replicate.core.executor import map_jobs; "
-            "map_jobs(time.sleep, [60, 60], 'local', 2)")
-    proc = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE, text=True)
-    time.sleep(1.5)  # the workers are sleeping
+    code = ("import pathlib, sys, time\nfrom replicate.core.executor import map_jobs\n"
+            "def job(i):\n    pathlib.Path(sys.argv[1], f'started-{i}').touch()\n    time.sleep(60)\n"
+            "map_jobs(job, [0, 1], 'local', 2)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while len(list(tmp_path.glob("started-*"))) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(list(tmp_path.glob("started-*"))) == 2, "both workers run a job"
     start = time.monotonic()
     proc.send_signal(signal.SIGINT)
-    proc.wait(timeout=30)
+    proc.wait(timeout=60)
     assert time.monotonic() - start < 10 and "KeyboardInterrupt" in proc.stderr.read()

@@ -17,7 +17,7 @@ import os
 import sys
 from collections.abc import Callable, Iterable
 
-from tqdm.auto import tqdm
+from tqdm import tqdm  # a terminal's bar: the commands' (the pipeline's notebooks show none)
 
 from replicate.core.schema import ConfigError
 
@@ -59,12 +59,19 @@ def map_jobs(fn: Callable, jobs: Iterable, executor: str = "local", workers: int
                 for ref in refs:
                     ray.cancel(ref, force=True)
                 raise
-        with multiprocessing.Pool(max(1, workers)) as pool:  # leaving the block terminates the workers
+        pool = multiprocessing.Pool(max(1, workers))
+        try:
             results = []
             for result in pool.imap(fn, jobs):
                 results.append(result)
                 bar.update()
+            pool.close()
             return results
+        except BaseException:
+            pool.terminate()  # the workers stop now, whatever they were doing
+            raise
+        finally:
+            pool.join()
 
 
 def apply(fn: Callable, job):
