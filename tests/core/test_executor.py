@@ -96,10 +96,13 @@ def test_ctrl_c_stops_the_workers_at_once(tmp_path):
     import sys
     import time
 
+    from ..command import default_sigint
+
     code = ("import pathlib, sys, time\nfrom replicate.core.executor import map_jobs\n"
             "def job(i):\n    pathlib.Path(sys.argv[1], f'started-{i}').touch()\n    time.sleep(60)\n"
             "map_jobs(job, [0, 1], 'local', 2)\n")
-    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], stderr=subprocess.PIPE, text=True,
+                            preexec_fn=default_sigint)  # a suite run in the background ignores SIGINT otherwise
     deadline = time.monotonic() + 120
     while len(list(tmp_path.glob("started-*"))) < 2 and time.monotonic() < deadline:
         time.sleep(0.05)
