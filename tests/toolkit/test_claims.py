@@ -129,3 +129,21 @@ def test_cover_force_then_ctrl_c_keeps_the_old_result(tmp_path, replicate, monke
     assert sorted(p.name for p in out.iterdir()) == ["summary.json"]
     assert (out / "summary.json").read_text() == '{"coverage": "the old result"}\n'
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lake"]
+
+
+def test_an_interrupted_cover_training_can_be_resumed(tmp_path, replicate, monkeypatch):
+    """``cover --method cr`` records its lake in the run folder before it trains, so a training interrupted after a
+    checkpoint continues with ``train --resume`` (it once answered "unknown region"), as the command says."""
+    from replicate.toolkit import cover
+    from replicate.world.regions import read_run_region
+
+    def interrupted(rc, region, episodes, seed, run_dir, *args, **kw):
+        assert read_run_region(run_dir).name == "bedok_outline", "the lake is recorded before training"
+        (run_dir / "checkpoint.pt").write_bytes(b"a checkpoint")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cover, "train", interrupted)
+    code, err = replicate("cover", "--method", "cr", "--region", "data/bedok_outline.geojson", "--episodes", "50",
+                          "--out", str(tmp_path / "lake"), "--no-progress")
+    assert code == 130 and f"`replicate train --resume {tmp_path / 'lake' / 'run'}` continues the training" in err
+    assert (tmp_path / "lake" / "run" / "checkpoint.pt").exists()

@@ -104,8 +104,8 @@ def cover(
     rc = run_config(params, config, "cr")
     n_envs = rc.algo.n_envs
     episodes = max(n_envs, episodes - episodes % n_envs)
+    write_run_region(out / "run", region)  # resume, evaluate and export read the run's region from the folder
     train(rc, region, episodes, seed, out / "run", params.train.checkpoint_every, resume=False, progress=progress)
-    write_run_region(out / "run", region)  # evaluate and export read the run's region from the folder
     method = evaluate_run(out / "run", params, region, progress=progress)
     lloyd = evaluate_baseline("lloyd_converged", params, region, config, progress=progress)
     c = params.coverage

@@ -53,6 +53,9 @@ def run(args: argparse.Namespace) -> int:
     check_cover_args(args, params)
     out = Path(args.out)
     created = claim_run_folder(out, args.force, args.held)
+    run = out / "run"
+    args.interrupted_hint = lambda: (f"`replicate train --resume {run}` continues the training, and `replicate "
+                                     f"evaluate {run}` then measures it" if (run / "checkpoint.pt").exists() else "")
     try:
         s = cover_into(args, params, out, tempfile)
     except BaseException:
