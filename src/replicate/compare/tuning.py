@@ -22,6 +22,7 @@ import hashlib
 import json
 import logging
 import shutil
+import sys
 import tempfile
 import time
 import warnings
@@ -109,7 +110,7 @@ def suggest(trial, space: dict[str, Dimension]) -> dict:
 
 
 def run_trials(study, score: Callable[[dict], tuple[float, float]], space: dict[str, Dimension], trials: int,
-               executor: str = "local") -> None:
+               executor: str = "local", progress: str | None = None) -> None:
     """Complete the study to ``trials`` finished trials (a resumed study runs only the missing ones); a trial
     draws values for ``space`` and ``score(values)`` gives (value, CPU seconds).
 
@@ -117,7 +118,8 @@ def run_trials(study, score: Callable[[dict], tuple[float, float]], space: dict[
     the committed studies were run in). ``ray``: batches of as many trials as the cluster has CPUs, each trial a
     Ray task (TPE draws a batch before it sees its results). Any number of processes may work on one study at
     once through a shared storage URL. Each trial records its CPU seconds and the arithmetic fingerprint of the
-    process running the sampler (``fingerprint.search_fingerprint``) as user attributes."""
+    process running the sampler (``fingerprint.search_fingerprint``) as user attributes. ``progress`` names a bar
+    of the trials (a command's; the pipeline's stages show none)."""
     import optuna
 
     def finished() -> int:
@@ -131,13 +133,15 @@ def run_trials(study, score: Callable[[dict], tuple[float, float]], space: dict[
             return value
 
         if finished() < trials:
-            study.optimize(objective, n_trials=trials - finished())
+            if progress:
+                print(f"{progress}: {trials - finished()} trials", file=sys.stderr)
+            study.optimize(objective, n_trials=trials - finished(), show_progress_bar=progress is not None)
         return
     slots = parallel_slots(executor, 1)
     while (done := finished()) < trials:
         batch = [study.ask() for _ in range(min(slots, trials - done))]
         try:
-            results = map_jobs(score, [suggest(t, space) for t in batch], executor)
+            results = map_jobs(score, [suggest(t, space) for t in batch], executor, progress=progress)
         except BaseException:
             for t in batch:
                 study.tell(t, state=optuna.trial.TrialState.FAIL)
@@ -187,7 +191,7 @@ def baseline_score(kind: str, params: Params, region: Region, seed: int, episode
     return baseline_coverage(kind, gains, params, region, seed, episodes), time.process_time() - t0
 
 
-def tune_baseline(params: Params, region: Region, kind: str, executor: str = "local") -> dict:
+def tune_baseline(params: Params, region: Region, kind: str, executor: str = "local", progress: bool = False) -> dict:
     """The ``kind`` baseline's study on ``region``: best gains, their tuning coverage, the budget."""
     tc = params.tuning
     search = getattr(tc.baselines, kind)
@@ -196,14 +200,14 @@ def tune_baseline(params: Params, region: Region, kind: str, executor: str = "lo
                       region_key(region.polygon), rc.world, rc.coverage)
     study = open_study(tc.baselines.storage, name, tc.sampler_seed)
     score = functools.partial(baseline_score, kind, params, region, tc.starts_seed, tc.starts)
-    run_trials(study, score, search.space, search.trials, executor)
+    run_trials(study, score, search.space, search.trials, executor, f"{kind} on {region.name}" if progress else None)
     return {"gains": dict(study.best_params), "tuning_coverage": study.best_value, **budget(study),
             "storage": tc.baselines.storage}
 
 
-def tune_baselines(params: Params, regions: dict[str, Region], executor: str = "local") -> dict:
+def tune_baselines(params: Params, regions: dict[str, Region], executor: str = "local", progress: bool = False) -> dict:
     """Every baseline kind on every region → ``{"KIND/REGION": tune_baseline(...)}``."""
-    return {RegionKey(kind, name).key: tune_baseline(params, region, kind, executor)
+    return {RegionKey(kind, name).key: tune_baseline(params, region, kind, executor, progress)
             for kind in BASELINE_KINDS for name, region in regions.items()}
 
 
@@ -243,7 +247,7 @@ def general_baseline_score(kind: str, params: Params, gains: dict) -> tuple[floa
     return general_baseline_coverage(kind, params, gains), time.process_time() - t0
 
 
-def tune_general_baselines(params: Params, executor: str = "local", workers: int = 1) -> dict:
+def tune_general_baselines(params: Params, executor: str = "local", workers: int = 1, progress: bool = False) -> dict:
     """Naive swarming's and Lloyd's studies on the general policy's training worlds →
     ``{"naive_tuned": {gains, tuning_coverage, budget}, "lloyd_tuned": {...}}``.
 
@@ -252,13 +256,14 @@ def tune_general_baselines(params: Params, executor: str = "local", workers: int
     kinds = ("naive", "lloyd")
     if executor == "local":
         open_storage(params.tuning.general_baselines.storage)  # its tables, before two processes open it
-        results = map_jobs(functools.partial(general_study, params), kinds, "local", workers)
+        results = map_jobs(functools.partial(general_study, params), kinds, "local", workers,
+                           progress="general baselines' studies" if progress else None)
     else:
-        results = [general_study(params, kind, executor) for kind in kinds]
+        results = [general_study(params, kind, executor, progress) for kind in kinds]
     return {f"{kind}_tuned": result for kind, result in zip(kinds, results)}
 
 
-def general_study(params: Params, kind: str, executor: str = "local") -> dict:
+def general_study(params: Params, kind: str, executor: str = "local", progress: bool = False) -> dict:
     """One baseline's study of ``tune_general_baselines``, completed (or read back) → its result."""
 
     tc, gb = params.tuning, params.tuning.general_baselines
@@ -268,7 +273,8 @@ def general_study(params: Params, kind: str, executor: str = "local") -> dict:
                       params.world, params.coverage, params.general.episode_length)
     study = open_study(gb.storage, name, tc.sampler_seed)
     trials = gb.naive_trials if kind == "naive" else gb.lloyd_trials
-    run_trials(study, functools.partial(general_baseline_score, kind, params), search.space, trials, executor)
+    run_trials(study, functools.partial(general_baseline_score, kind, params), search.space, trials, executor,
+               f"{kind}, every training world" if progress else None)
     return {"gains": dict(study.best_params), "tuning_coverage": study.best_value, **budget(study),
             "storage": gb.storage}
 
@@ -327,7 +333,7 @@ def method_score(params: Params, regions: dict[str, Region], values: dict) -> tu
     return score, time.process_time() - t0
 
 
-def tune_method(params: Params, regions: dict[str, Region], executor: str = "local") -> dict:
+def tune_method(params: Params, regions: dict[str, Region], executor: str = "local", progress: bool = False) -> dict:
     """The ``tuning.method`` study: trials train on every region of ``tuning.method.regions`` and score their
     mean coverage. → best values, best score, budget."""
     ms, tc = params.tuning.method, params.tuning
@@ -341,7 +347,7 @@ def tune_method(params: Params, regions: dict[str, Region], executor: str = "loc
     incumbent = incumbent_values(params)
     if not any(t.params == incumbent for t in study.trials):
         study.enqueue_trial(incumbent)  # the config's own values are a trial: the search can only improve on them
-    run_trials(study, score, ms.space, ms.trials, executor)
+    run_trials(study, score, ms.space, ms.trials, executor, f"{ms.config} {ms.method}" if progress else None)
     return {"values": dict(study.best_params), "tuning_coverage": study.best_value, **budget(study),
             "storage": ms.storage, "incumbent": incumbent, "incumbent_coverage": next(
                 (t.value for t in study.trials if t.params == incumbent and t.value is not None), None)}

@@ -30,6 +30,7 @@ def add(sub, verb: dict, regions: str) -> None:
                    help="where trials run: local (one after another) or ray (Ray tasks; RAY_ADDRESS joins a "
                         "cluster; several `replicate tune` may share one study through a storage URL) (default: "
                         "pipeline.executor)")
+    u.add_argument("--no-progress", action="store_true", help="no progress bars")
     u.set_defaults(func=run)
 
 
@@ -45,20 +46,21 @@ def run(args: argparse.Namespace) -> int:
                "general-baselines": params.tuning.general_baselines.result}[args.what]
     # checked before the study runs; a study's result is written again from its storage, so it replaces the old
     out = claim_out_file(Path(args.out or default), force=True, held=args.held)
+    shown = not args.no_progress
     if args.what == "baselines":
         names = params.stages.get("pipeline", {}).get("regions", list(params.regions))
-        result = tune_baselines(params, {r: resolve_region(r, params) for r in names}, executor)
+        result = tune_baselines(params, {r: resolve_region(r, params) for r in names}, executor, shown)
         artifacts.write_json(out, result)
         for key, b in result.items():
             print(f"{key}: tuning coverage {b['tuning_coverage']:.3f} with {b['gains']} ({b['trials']} trials)")
     elif args.what == "general-baselines":
-        result = tune_general_baselines(params, executor, params.stages.get("pipeline", {}).get("workers", 1))
+        result = tune_general_baselines(params, executor, params.stages.get("pipeline", {}).get("workers", 1), shown)
         artifacts.write_json(out, result)
         for key, b in result.items():
             print(f"{key}: coverage {b['tuning_coverage']:.3f} on the training worlds with {b['gains']} "
                   f"({b['trials']} trials, {b['cpu_seconds']:.0f} CPU s)")
     else:
-        result = tune_method(params, {r: resolve_region(r, params) for r in ms.regions}, executor)
+        result = tune_method(params, {r: resolve_region(r, params) for r in ms.regions}, executor, shown)
         artifacts.write_json(out, result)
         print(f"{ms.config} {ms.method.upper()}-MARL: tuning coverage {result['tuning_coverage']:.3f} with "
               f"{result['values']} ({result['trials']} trials, {result['cpu_seconds']:.0f} CPU s); set them as "
