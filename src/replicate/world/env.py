@@ -302,7 +302,10 @@ class CoverageEnv:
         return StepResult(obs, reward, union, self.t >= self.world.episode_length, self.paid(reward, obs))
 
     def paid(self, reward: np.ndarray, obs: np.ndarray) -> np.ndarray:
-        """What a learner is paid for ``reward`` [E, N] at observation ``obs`` (``Pay``) → [E, N]."""
+        """What a learner is paid for ``reward`` [E, N] at observation ``obs`` (``Pay``) → [E, N]; the reward itself
+        when the pay adds nothing (an evaluation's environment, a scale of 1), with no array made each step."""
+        if self.pay == Pay():
+            return reward
         pay = reward * self.pay.scale
         if self.pay.shore_penalty:
             live = np.ones((self.n_envs, self.n_agents), bool) if self.alive is None else self.alive
