@@ -29,6 +29,8 @@
 6. One update of the general policy's learner (``shared_maddpg``: the shared actor and the pooled critic) on a
    minibatch shaped as its training samples it, against its matmul floor and against the same update with its two
    losses compiled by ``torch.compile`` (inductor), and where its time goes.
+7. What a field team waits for (``benchmarks/field_bench.py``): `replicate --help`'s start-up, `act --stream`'s
+   latency per step, and `replicate plan` on a real lake.
 
 Everything runs on one thread (``torch.set_num_threads(1)``), the budget of one core of the 2-core machine, and
 sections 0-3 with the allocator setting of the pipeline's training processes.
@@ -44,6 +46,7 @@ import time
 from pathlib import Path
 
 import benchmarl_side_by_side as benchmarl_bench  # beside this file
+import field_bench  # beside this file
 import numpy as np
 import torch
 from torch import nn
@@ -605,7 +608,7 @@ def full_run(params, square) -> None:
           f"{summary['updates']} updates)")
 
 
-SECTIONS = (0, 1, 2, 3, 4, 5, 6)
+SECTIONS = (0, 1, 2, 3, 4, 5, 6, 7)
 
 
 def main(argv=None) -> int:
@@ -647,6 +650,8 @@ def main(argv=None) -> int:
         benchmarl_section()
     if 6 in only:
         general_update_section(params, floors)
+    if 7 in only:
+        field_bench.field_section()
     if args.full:
         full_run(params, square)
     return 0

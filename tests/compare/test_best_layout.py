@@ -63,3 +63,37 @@ def test_scoring_within_reach_gives_the_whole_fleets_layout(params):
                 reference[i], improved = moves[k], True
         step = step if improved else step / 2
     np.testing.assert_array_equal(local_search(lake, placed, 0.1, r, e, 1e-3), reference)
+
+
+def test_every_evaluated_lake_keeps_the_tenth_of_a_radius_grid(params):
+    """The cap on candidate points (``MAX_CANDIDATES``) is for lakes kept in metres: no lake, fleet and density of
+    the evaluation suite or the yardstick reaches it, so their best layouts are those the grid of R/10 finds."""
+    from replicate.compare import best_layout as bl
+    from replicate.compare.suite import at_density, suite_cells, suite_lakes
+    from replicate.compare.yardstick import yardstick_cells, yardstick_lakes
+
+    radius = params.coverage.radius
+    worlds = [(suite_lakes(params), suite_cells(params)), (yardstick_lakes(params), yardstick_cells(params))]
+    largest = 0.0
+    for lakes, cells in worlds:
+        for cell in cells:
+            region, drawn_for = lakes[getattr(cell, "region", getattr(cell, "lake", None))]
+            minx, miny, maxx, maxy = at_density(region, drawn_for, cell.n_agents).polygon.bounds
+            largest = max(largest, (maxx - minx + 2 * radius) * (maxy - miny + 2 * radius) / (radius / 10) ** 2)
+    assert 1000 < largest < bl.MAX_CANDIDATES / 2
+
+
+def test_a_lake_hundreds_of_radii_across_gets_a_coarser_grid(monkeypatch):
+    """A lake 120 radii across: the grid is coarsened to the cap, and the layout still reaches the ceiling (nine
+    polygons fit without overlap, found by the local search from the coarse grid)."""
+    from shapely.geometry import box
+
+    from replicate.compare import best_layout as bl
+
+    seen = []
+    real_greedy = bl.greedy
+    monkeypatch.setattr(bl, "greedy", lambda region, grid, *a: seen.append(len(grid)) or real_greedy(region, grid, *a))
+    lake = box(0, 0, 60, 60)
+    xy, coverage = bl.best_layout(lake, 9, 0.5, 30)
+    assert max(seen) <= bl.MAX_CANDIDATES * 1.02
+    assert coverage == pytest.approx(9 * covered_area(box(-1, -1, 1, 1), np.zeros((1, 2)), 0.5, 30) / 3600, rel=1e-9)

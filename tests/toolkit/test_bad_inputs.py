@@ -136,7 +136,7 @@ def test_general_policy_inputs_are_refused_by_name(capsys, tmp_path, monkeypatch
 @pytest.mark.parametrize("argv, message", [
     (["cover", "--region", "lake.csv", "--out", "o"], "lake.csv: holds a table without geometries"),
     (["cover", "--region", "data/bedok_outline.geojson", "--radius-m", "0.01", "--out", "o"],
-     "would hold 3.48e+13 cells"),
+     "crossing it takes 760700 steps (at most 5000); give a radius of at least 0.123 m"),
     (["cover", "--region", "data/bedok_outline.geojson", "--radius-m", "1e12", "--out", "o"],
      "--radius-m 1e+12: one buoy's coverage is wider than the whole lake (8.333e+05 m²"),
     (["--set", "coverage.table_spacing=1e-9", "train", "--episodes", "50", "--out", "o"],

@@ -208,10 +208,32 @@ def test_the_uncovered_water_sensor_passes_the_api_and_seed_tests():
     assert shares.min() < 1.0 and shares.max() == 1.0  # buoys covering each other's water, and open water
 
 
-def test_a_small_coverage_radius_is_resolved_as_finely_as_the_papers(params):
+def test_a_coverage_radius_is_resolved_with_as_many_cells_as_the_papers(params):
+    """A small radius as finely as the paper's; a large one (a lake kept in metres, R = 25 m) as coarsely: its
+    lookup grids would otherwise need 64.8 GiB."""
     from replicate.world.scenario import scaled_coverage
 
     small = scaled_coverage(params.coverage, 0.03)
     assert small.raster_spacing <= small.radius / 2 and small.table_spacing <= small.radius / 2
     assert small.radius / small.raster_spacing == pytest.approx(params.coverage.radius / params.coverage.raster_spacing)
-    assert scaled_coverage(params.coverage, 0.8).raster_spacing == params.coverage.raster_spacing
+    large = scaled_coverage(params.coverage, 25.0)
+    assert large.raster_spacing == pytest.approx(params.coverage.raster_spacing * 50)
+    assert large.table_spacing == pytest.approx(params.coverage.table_spacing * 50)
+
+
+def test_a_lake_file_at_the_papers_scale_and_in_metres(params):
+    """``parallel_env(region=FILE)``: the lake scaled to 9 m²; with ``radius_m`` kept in metres, its grids bounded
+    (no 64 GiB table) and its clock in seconds; an unknown name is refused with the names and the fix."""
+    from replicate.toolkit.pettingzoo_env import parallel_env
+    from replicate.world.regions import RegionError
+
+    lake = str(ROOT / "data" / "lakes" / "lake_karaguz.geojson")
+    paper = parallel_env(region=lake, reward="cr")
+    assert paper.core.region.area == pytest.approx(9.0)
+    metric = parallel_env(region=lake, radius_m=25.0, speed_ms=1.0, reward=None, observation="local", shore="wall")
+    assert metric.core.region.area * metric.units.metres**2 == pytest.approx(5.4496e6, rel=1e-3)
+    obs, _ = metric.reset(seed=0)
+    _, _, _, _, infos = metric.step({a: metric.action_space(a).sample() for a in metric.agents})
+    assert infos["buoy_0"]["time_s"] == pytest.approx(metric.units.period_s) and metric.units.period_s > 14
+    with pytest.raises(RegionError, match="neither a region of params.yaml"):
+        parallel_env(region="lake_nowhere")

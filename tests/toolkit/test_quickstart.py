@@ -29,7 +29,8 @@ def quickstart_commands() -> list[list[str]]:
 
 def test_the_quickstart_is_read_from_the_readme():
     commands = quickstart_commands()
-    assert len(commands) >= 4 and all(c[0] in ("cover", "train", "evaluate", "export", "--set") for c in commands)
+    verbs = ("plan", "cover", "train", "evaluate", "export", "--set")
+    assert len(commands) >= 4 and all(c[0] in verbs for c in commands)
     assert all(any(w.startswith("my-runs/") for w in c) or c[0] in ("evaluate", "export") for c in commands)
 
 

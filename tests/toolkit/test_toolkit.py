@@ -18,7 +18,8 @@ from replicate.core.params import load_params
 from replicate.learn.policy import load_policy
 from replicate.learn.train import load_actors
 from replicate.toolkit.animate import animate_run
-from replicate.toolkit.export import act, export_policy
+from replicate.toolkit.deploy import act
+from replicate.toolkit.export import export_policy
 from replicate.world.coverage import coverage_ceiling
 
 from ..command import SMALL, cli, small_trainer

@@ -20,6 +20,9 @@ TIE = 1e-9  # gains (m²) or coverages closer than this are equal: the same wate
 # the candidate grid's origin, in grid spacings: the search ends in another local optimum from each. On 6 suite
 # lakes at N = 9 and 20 the four differ by <= 0.0015 in coverage, on one lake by 0.014 (0.922 to 0.935)
 GRID_OFFSETS = ((0.0, 0.0), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25))
+# candidate points of one grid at most: the suite's lakes (at most ~30 radii across) stay far below it, with
+# their tenth-of-a-radius grids; a real lake at a 25 m radius (100+ radii across) gets a coarser grid
+MAX_CANDIDATES = 200_000
 
 
 def coverage_polygons(xy: np.ndarray, radius: float, edges: int) -> np.ndarray:
@@ -97,9 +100,11 @@ def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spaci
                 tolerance: float = 1e-3) -> tuple[np.ndarray, float]:
     """(positions [N, 2], coverage fraction) of the best layout found (module docstring): greedy placement and
     local search from the candidate grid at each of ``GRID_OFFSETS``, the best of them. ``spacing`` of the grid
-    defaults to a tenth of the radius."""
-    spacing = radius / 10 if spacing is None else spacing
+    defaults to a tenth of the radius, coarser where that grid would hold more than ``MAX_CANDIDATES`` points (a
+    lake hundreds of radii across: the local search still refines every position down to ``tolerance``)."""
     minx, miny, maxx, maxy = region.bounds
+    if spacing is None:
+        spacing = max(radius / 10, np.sqrt((maxx - minx + 2 * radius) * (maxy - miny + 2 * radius) / MAX_CANDIDATES))
     reach = region.buffer(radius)  # a polygon centred outside the water can reach in
     best = (None, -1.0)
     for dx, dy in GRID_OFFSETS:

@@ -22,7 +22,6 @@ import hashlib
 import json
 import logging
 import shutil
-import sys
 import tempfile
 import time
 import warnings
@@ -46,6 +45,8 @@ from replicate.world import coverage
 from replicate.world.geometry import region_key
 from replicate.world.regions import Region
 from replicate.world.scenario import evaluation_env, general_env, horizon
+
+log = logging.getLogger(__name__)
 
 BASELINE_KINDS = ("naive", "lloyd")
 
@@ -134,7 +135,7 @@ def run_trials(study, score: Callable[[dict], tuple[float, float]], space: dict[
 
         if finished() < trials:
             if progress:
-                print(f"{progress}: {trials - finished()} trials", file=sys.stderr)
+                log.info("%s: %d trials", progress, trials - finished())
             study.optimize(objective, n_trials=trials - finished(), show_progress_bar=progress is not None)
         return
     slots = parallel_slots(executor, 1)

@@ -12,14 +12,16 @@ needs this package installed (``pip install '.[ray]'``), since the jobs are its 
 
 from __future__ import annotations
 
+import logging
 import multiprocessing
 import os
-import sys
 from collections.abc import Callable, Iterable
 
 from tqdm import tqdm  # a terminal's bar: the commands' (the pipeline's notebooks show none)
 
 from replicate.core.schema import ConfigError
+
+log = logging.getLogger(__name__)
 
 EXECUTORS = ("local", "ray")
 
@@ -103,8 +105,8 @@ def ray_runtime(num_cpus: int | None = None, attempts: int = 3):
             if "timed out during startup" not in str(exc) or attempt == attempts:
                 raise
             ray.shutdown()
-            print(f"Ray's local runtime did not start in time (attempt {attempt} of {attempts}); trying again",
-                  file=sys.stderr)
+            log.warning("Ray's local runtime did not start in time (attempt %d of %d); trying again", attempt,
+                        attempts)
     return ray
 
 

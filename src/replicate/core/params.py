@@ -186,10 +186,12 @@ class RunConfig:
     method_name: str
 
 
-def load_params(path: str | Path = DEFAULT_PARAMS, overrides: Mapping[str, Any] | None = None) -> Params:
-    """Read and validate ``params.yaml``; ``overrides`` maps dotted keys to values (``train.episodes``). The
-    default ``params.yaml`` is the one in the working folder, else the one installed with the package."""
-    path = Path(path)
+def load_params(path: str | Path | None = DEFAULT_PARAMS, overrides: Mapping[str, Any] | None = None) -> Params:
+    """Read and validate ``params.yaml``; ``overrides`` maps dotted keys to values (``train.episodes``). ``None``
+    is the file installed with the package (the command line's default: a stray ``params.yaml`` in the working
+    folder, DVC's default name, is never read unless given); the default ``params.yaml`` is the one in the working
+    folder (the pipeline's), else the installed one."""
+    path = packaged("params.yaml") if path is None else Path(path)
     if path == DEFAULT_PARAMS and not path.exists():
         path = packaged("params.yaml")
     if not path.exists():

@@ -5,6 +5,7 @@ bootstrap intervals, the robustness scenarios, the ablation's rows)."""
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 from replicate.compare import stats
@@ -17,6 +18,8 @@ from replicate.learn.runs import finished_run, run_identity
 from replicate.learn.train import CURVE
 from replicate.pipeline.matrix import cell_seeds
 from replicate.world.regions import make_region
+
+log = logging.getLogger(__name__)
 
 
 def _evaluate_one(job: dict) -> tuple[str, dict]:
@@ -62,7 +65,7 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
         ident = json.loads((run / "run.json").read_text())
         why = not_in_matrix(params, ident, run, built)
         if why:  # a run of older code or settings, of a seed that chose values, of an ablation since removed
-            print(f"evaluate: skipped {run.name}: {why}")
+            log.warning("skipped %s: %s", run.name, why)
             continue
         curve = read_curve(run / CURVE)
         artifacts.write_csv(metrics_dir / "curves" / f"{run.name}.csv", ["episode", "team_reward", "coverage"],

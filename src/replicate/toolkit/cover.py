@@ -21,11 +21,9 @@ Two scales:
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 
 import numpy as np
-from shapely import affinity
 
 from replicate.compare.evaluate import (
     evaluate_baseline,
@@ -45,8 +43,8 @@ from replicate.toolkit import plots
 from replicate.toolkit.export import export_general
 from replicate.world.env import start_patch
 from replicate.world.osm import OSMUnavailable, outline_from_osm_xml, query_osm
-from replicate.world.regions import Region, RegionError, check_polygon, region_from_file, write_run_region
-from replicate.world.scenario import horizon
+from replicate.world.regions import RegionError, write_run_region
+from replicate.world.scenario import horizon, scaled_setup
 
 
 def outline_file(region: str | None, place: str | None, name: str | None, workdir: Path) -> Path:
@@ -69,30 +67,6 @@ def outline_file(region: str | None, place: str | None, name: str | None, workdi
         ) from exc
     outline.write(workdir / "outline.geojson")
     return workdir / "outline.geojson"
-
-
-def scaled_setup(path: Path, params: Params, n_agents: int | None, radius_m: float | None) -> tuple[Region, Params]:
-    """The region and the params of a cover run (see the module docstring for the two scales)."""
-    world = params.world if n_agents is None else dataclasses.replace(params.world, n_agents=int(n_agents))
-    if world.n_agents < 1:
-        raise RegionError("at least one buoy is needed")
-    if radius_m is None:
-        region = region_from_file(path, area=world.region_area)
-    else:
-        if radius_m <= 0:
-            raise RegionError(f"the coverage radius must be positive, got {radius_m} m")
-        real = region_from_file(path, area=None)
-        across = 2 * math.sqrt(real.polygon.area / math.pi)  # m: the width of a round lake of the same area
-        if radius_m > across:
-            raise RegionError(f"--radius-m {radius_m:g}: one buoy's coverage is wider than the whole lake "
-                              f"({real.polygon.area:.4g} m², about {across:.4g} m across); give a radius below that")
-        unit = radius_m / params.coverage.radius  # metres per simulation metre
-        sim = check_polygon(affinity.scale(real.polygon, 1 / unit, 1 / unit, origin=(0, 0)), real.name)
-        region = dataclasses.replace(real, polygon=sim, scale=unit, notes=real.notes + (
-            f"real scale: 1 simulation metre = {unit:g} m (coverage radius {radius_m:g} m)",))
-        horizon = max(world.episode_length, math.ceil(world.episode_length * math.sqrt(sim.area / world.region_area)))
-        world = dataclasses.replace(world, episode_length=horizon, region_area=sim.area)
-    return region, dataclasses.replace(params, world=world)
 
 
 def cover(

@@ -10,14 +10,13 @@ from __future__ import annotations
 import warnings
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from replicate.core import artifacts
 from replicate.core.artifacts import CheckpointError
 from replicate.core.schema import to_dict
 from replicate.core.sections import SensorsConfig
-from replicate.learn.policy import FleetPolicy, SwarmPolicy, load_policy, save_policy, sensor_config
+from replicate.learn.policy import FleetPolicy, SwarmPolicy, save_policy, sensor_config
 from replicate.learn.shared_maddpg import SharedActor
 from replicate.learn.train import load_actors
 from replicate.world.env import observation_columns
@@ -96,29 +95,3 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
     save_policy(module, metadata, out)
     return metadata
 
-
-def act(path: str | Path, observations: np.ndarray, real: bool = False) -> np.ndarray:
-    """Commands for every buoy from its observation [N, obs_dim]; ``real`` observations are UTM metres (and m/s)
-    and are mapped to simulation units first."""
-    module, meta = load_policy(path)
-    obs = np.asarray(observations, dtype=float)
-    dim = len(meta["observation_layout"])
-    if obs.ndim != 2 or obs.shape[1] != dim or (meta["n_agents"] != "any" and obs.shape[0] != meta["n_agents"]):
-        raise ValueError(f"expected observations of shape ({meta['n_agents']}, {dim}) "
-                         f"[{', '.join(meta['observation_layout'])}], got {obs.shape}")
-    if real:
-        if meta.get("n_agents") == "any":
-            raise ValueError(f"{path}: a general policy reads its sensors in simulation units (radius 0.5); give "
-                             "its observations in simulation units (without --real)")
-        if meta.get("utm_crs") is None:
-            raise ValueError(f"{path}: the policy's region ({meta.get('region')}) is synthetic, with no map "
-                             "coordinates; give its observations in simulation units (without --real)")
-        obs = obs.copy()
-        if meta["observation"] == "local":  # lengths and speeds in the buoy's frame; a heard-mask stays
-            lengths = [not c.endswith("_heard") for c in meta["observation_layout"]]
-            obs[:, lengths] = obs[:, lengths] / meta["scale_m_per_sim_m"]
-        else:
-            obs[:, :2] = (obs[:, :2] - np.asarray(meta["offset"])) / meta["scale_m_per_sim_m"]
-            obs[:, 2:] = obs[:, 2:] / meta["scale_m_per_sim_m"]
-    with torch.no_grad():
-        return module(torch.as_tensor(obs, dtype=torch.float32)).numpy()

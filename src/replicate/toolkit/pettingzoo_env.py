@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from pathlib import Path
 
 import numpy as np
 from gymnasium import spaces
@@ -23,13 +24,17 @@ from replicate.core.sections import SensorsConfig
 from replicate.world.currents import Current
 from replicate.world.env import STARTS, CoverageEnv
 from replicate.world.regions import Region
-from replicate.world.scenario import UNSET, Unset, option_env
+from replicate.world.scenario import UNSET, Unset, option_env, scaled_setup
+from replicate.world.units import BOB_SPEED, Units
 
 
 class CoverageParallelEnv(ParallelEnv):
     """PettingZoo parallel API over one ``CoverageEnv``.
 
-    ``region`` is a name in params.yaml or a ``Region``. ``config`` (``"paper"`` or ``"tuned"``) takes a
+    ``region`` is a name in params.yaml, a lake's vector file (scaled to the paper's 9 m²) or a ``Region``; with
+    ``radius_m`` (and ``speed_ms``, default 1.0) a lake file keeps its size in metres for buoys of that sensing
+    radius and top speed (``world.units``): observations and actions stay in the simulation's units a policy reads,
+    ``env.units`` converts them, and infos carry ``time_s``. ``config`` (``"paper"`` or ``"tuned"``) takes a
     configuration's reward options and world bounds from params.yaml: its observation, geofence, reward scale,
     union credit and union weight (``config="tuned"`` is the CR reward that learns, see ``docs/TUNING.md``); the
     keyword arguments override them one by one. ``n_agents``, ``radius``, ``episode_length`` override the world;
@@ -64,8 +69,18 @@ class CoverageParallelEnv(ParallelEnv):
         lose: int = 0,
         current: tuple[float, float] | None = None,
         params: Params | None = None,
+        radius_m: float | None = None,
+        speed_ms: float = BOB_SPEED,
     ):
         params = params or load_params(packaged("params.yaml"))
+        self.units = None
+        if radius_m is not None:  # a lake file kept at its size in metres: the world's units say how (``units``)
+            if not isinstance(region, str) or region in params.regions or radius is not None:
+                raise ValueError("radius_m keeps a lake file at its real size; give region='LAKE_FILE' without "
+                                 "radius (the simulation's coverage radius stays the paper's)")
+            region, params = scaled_setup(Path(region), params, n_agents, radius_m)
+            self.units = Units.of(params.world, params.coverage, radius_m, speed_ms)
+            episode_length = episode_length or params.world.episode_length
         self.core = option_env(params, region, config=config, n_agents=n_agents, radius=radius, reward=reward,
                                observation=observation, sensors_config=sensors_config, geofence=geofence,
                                reward_scale=reward_scale, union_credit=union_credit, union_weight=union_weight,
@@ -109,7 +124,7 @@ class CoverageParallelEnv(ParallelEnv):
             self._loss_rng = np.random.default_rng([seed, 1])  # the losses of ``evaluate.rollout``
         obs = self.core.reset(start=self.start)
         self.agents = list(self.possible_agents)
-        coverage = float(self.core.coverage_fraction()[0])
+        coverage = float(self.core.coverage_fraction(exact=self.units is not None)[0])
         return self._obs(obs), {a: {"coverage": coverage} for a in self.agents}
 
     def step(self, actions: dict):
@@ -124,17 +139,20 @@ class CoverageParallelEnv(ParallelEnv):
                    if a in self.agents}
         truncated = bool(result.done)
         union = result.union_area[0]  # measured by the CR reward; NaN otherwise
-        coverage = float(union / self.core.region.area if np.isfinite(union) else self.core.coverage_fraction()[0])
+        coverage = float(union / self.core.region.area if np.isfinite(union)
+                         else self.core.coverage_fraction(exact=self.units is not None)[0])
         terminations = {a: False for a in self.agents}
         if self.lose and self.core.t == self.core.world.episode_length // 2:  # the loss, before the next step
             self.core.lose(self.lose, self._loss_rng)
             result = dataclasses.replace(result, obs=self.core.observe())  # the lost are no longer heard
             lost = [a for i, a in enumerate(self.possible_agents) if not self.core.alive[0, i]]
             terminations.update({a: True for a in lost if a in self.agents})
-            coverage = float(self.core.coverage_fraction()[0])  # of the buoys still in service
+            coverage = float(self.core.coverage_fraction(exact=self.units is not None)[0])  # the buoys in service
         obs = {a: o for a, o in self._obs(result.obs).items() if a in self.agents}
         truncations = {a: truncated for a in self.agents}
-        infos = {a: {"coverage": coverage} for a in self.agents}
+        info = {"coverage": coverage} if self.units is None else {"coverage": coverage,
+                                                                  "time_s": self.units.steps_time_s(self.core.t)}
+        infos = {a: dict(info) for a in self.agents}
         self.agents = [] if truncated else [a for a in self.agents if not terminations[a]]
         return obs, rewards, terminations, truncations, infos
 

@@ -16,7 +16,7 @@ from shapely.ops import nearest_points
 
 from replicate.core.sections import CoverageConfig, CRRewardConfig, SensorsConfig, SWRewardConfig, WorldConfig
 from replicate.world import rewards, sensors
-from replicate.world.geometry import CoverageGeometry
+from replicate.world.geometry import CoverageGeometry, coverage_fraction_exact
 from replicate.world.regions import Region, RegionError, signed_distance
 from replicate.world.shore import shoreline, wall_step
 
@@ -72,6 +72,15 @@ def start_patch(region: Polygon, side: float, at: str = "lower_left") -> Polygon
     _, nearest = nearest_points(corner, inner)
     patch = box(nearest.x - side / 2, nearest.y - side / 2, nearest.x + side / 2, nearest.y + side / 2)
     return patch.intersection(region)
+
+
+def launch_patch(region: Polygon, point: tuple[float, float], side: float) -> Polygon:
+    """A ``side`` × ``side`` square around a launch ``point`` in the water, clipped to it: where the buoys are
+    released from a boat or a jetty. A point on land is refused (the caller says how far, in its units)."""
+    if not region.contains(shapely.Point(point)):
+        raise RegionError("the launch point is not in the water; give a point in the lake")
+    x, y = point
+    return box(x - side / 2, y - side / 2, x + side / 2, y + side / 2).intersection(region)
 
 
 def _sides(rect: Polygon) -> tuple[float, float]:
@@ -148,10 +157,7 @@ class CoverageEnv:
             self.shore_edges = sensors.shore_segments(region.polygon)
             self.ray_directions = sensors.ray_directions(self.sensor_config.rays)
         self.patch = start_patch(region.polygon, world.start_patch)  # first: it refuses a region too narrow
-        self.geometry = CoverageGeometry(
-            region.polygon, coverage.radius, coverage.edges, coverage.table_spacing, coverage.raster_spacing,
-            closed=wall,
-        )
+        self._geometry = None  # the fast path's tables: built below for a reward, on first use without one
         self.start = "corner"  # where ``reset`` releases the buoys (``STARTS``)
         self.alive: np.ndarray | None = None  # [E, N] bool once a buoy is lost (``lose``); None: all alive
         self.wall = wall
@@ -161,10 +167,23 @@ class CoverageEnv:
         if wall:
             self.shore = shoreline(region.polygon, self.step_reach())
         self.fence = None if geofence is None else fence_box(region.polygon, geofence)
+        if reward is not None:
+            self._geometry = self.geometry  # a region too large for its grids is refused before any step
         self.seed(seed)
         self.pos = np.zeros((n_envs, self.n_agents, 2))
         self.vel = np.zeros((n_envs, self.n_agents, 2))
         self.t = 0
+
+    @property
+    def geometry(self) -> CoverageGeometry:
+        """The fast path of eq. (5)-(6) for this region (its area table and union raster). An environment without
+        reward (an evaluation, a plan) builds it only if asked for coverage on the fast path: on a lake kept in
+        metres its grids cost more than the whole evaluation."""
+        if self._geometry is None:
+            c = self.coverage
+            self._geometry = CoverageGeometry(self.region.polygon, c.radius, c.edges, c.table_spacing,
+                                              c.raster_spacing, closed=self.wall)
+        return self._geometry
 
     # ---- episode -----------------------------------------------------------------------------------------
     def seed(self, seed: int | np.random.SeedSequence | list) -> None:
@@ -335,8 +354,11 @@ class CoverageEnv:
             return rewards.cr_reward(terms, credit, self.cr, pos), union
         return np.zeros(pos.shape[:2]), np.full(self.n_envs, np.nan)
 
-    def coverage_fraction(self) -> np.ndarray:
-        """Fast-path coverage fraction of the buoys in service (SPEC §8 uses the exact one). → [E]."""
+    def coverage_fraction(self, exact: bool = False) -> np.ndarray:
+        """Fast-path coverage fraction of the buoys in service (SPEC §8 uses the exact one, ``exact``: shapely's,
+        with no grid to build, for a lake kept in metres). → [E]."""
         pos = self.live_positions()
+        if exact:
+            return coverage_fraction_exact(self.region.polygon, pos, self.coverage.radius, self.coverage.edges)
         terms = self.geometry.cover_terms(pos)
         return self.geometry.union_area(pos, terms.area) / self.region.area

@@ -48,6 +48,14 @@ class Region:
     def area(self) -> float:
         return float(self.polygon.area)
 
+    def to_map(self, xy) -> np.ndarray:
+        """Simulation positions [..., 2] → the map's (UTM metres): ``offset + scale · xy``."""
+        return np.asarray(self.offset) + self.scale * np.asarray(xy, dtype=float)
+
+    def map_polygon(self) -> Polygon:
+        """The water in UTM metres (the map's CRS, ``utm_crs``)."""
+        return affinity.affine_transform(self.polygon, [self.scale, 0, 0, self.scale, *self.offset])
+
     def to_geojson(self) -> dict:
         """The simulation-metre polygon with its provenance, as a GeoJSON FeatureCollection (no CRS)."""
         return {
@@ -263,7 +271,11 @@ def region_from_file(path: str | Path, name: str | None = None, area: float | No
             attribution = json.loads(path.read_text()).get("attribution", "")
         except (ValueError, UnicodeDecodeError):
             attribution = ""
-    source = str(props.get("source", props.get("NAME", props.get("name", path.name))))
+    if not attribution and props.get("attribution"):  # the feature's own, with its licence
+        licence = props.get("licence", props.get("license"))
+        attribution = str(props["attribution"]) + (f" (licence: {licence})" if licence else "")
+    source = props.get("source", props.get("NAME", props.get("name", path.name)))
+    source = source if isinstance(source, str) else str(props.get("upstream", props.get("name", path.name)))
     return region_from_geometry(name or path.stem, geometry, crs, area, source=source, attribution=attribution)
 
 

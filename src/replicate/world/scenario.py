@@ -14,8 +14,11 @@ is in this module, and their values in ``params.yaml``.
 from __future__ import annotations
 
 import dataclasses
+import math
+from pathlib import Path
 
 import numpy as np
+from shapely import affinity
 
 from replicate.core.params import Params, RunConfig, region_world
 from replicate.core.sections import CoverageConfig, CRRewardConfig, GeneralConfig, SensorsConfig
@@ -23,7 +26,7 @@ from replicate.world.coverage import cover_area
 from replicate.world.currents import Current
 from replicate.world.env import CoverageEnv, Pay
 from replicate.world.lakes import lake_region
-from replicate.world.regions import Region, make_region
+from replicate.world.regions import Region, RegionError, check_polygon, make_region, region_from_file
 
 
 def cr_weights(cr: CRRewardConfig, c1: float | None = None, c2: float | None = None) -> CRRewardConfig:
@@ -87,11 +90,49 @@ UNSET = Unset()
 
 
 def scaled_coverage(coverage: CoverageConfig, radius: float) -> CoverageConfig:
-    """``coverage`` with coverage radius ``radius``; below the configured radius its lookup grids shrink with it
-    (as many cells per radius), so that a small radius is resolved as finely as the paper's."""
-    shrink = min(1.0, radius / coverage.radius)
-    return dataclasses.replace(coverage, radius=radius, table_spacing=coverage.table_spacing * shrink,
-                               raster_spacing=coverage.raster_spacing * shrink)
+    """``coverage`` with coverage radius ``radius``; its lookup grids scale with it (as many cells per radius), so
+    that a small radius is resolved as finely as the paper's and a large one (a lake kept in metres, R = 25) costs
+    no more memory than the paper's scale."""
+    factor = radius / coverage.radius
+    return dataclasses.replace(coverage, radius=radius, table_spacing=coverage.table_spacing * factor,
+                               raster_spacing=coverage.raster_spacing * factor)
+
+
+MAX_HORIZON = 5000  # steps of one episode or mission: a lake at most ~600 coverage radii across
+
+
+def scaled_setup(path: Path, params: Params, n_agents: int | None, radius_m: float | None) -> tuple[Region, Params]:
+    """The region and the params of a lake file at one of two scales. ``radius_m`` None: the paper's, the lake
+    scaled to ``world.region_area`` (9 m²) with N buoys of coverage radius R = 0.5. Else real: the lake keeps its
+    size in metres and the buoys get a coverage radius of ``radius_m``; the simulation metre becomes ``radius_m / R``
+    metres (``world.units``), so the coverage polygon, the start patch and the physics keep their values in
+    simulation units, and the episode grows with the lake's linear size, ``T = T_paper · sqrt(A_sim / 9)`` (never
+    shorter)."""
+    world = params.world if n_agents is None else dataclasses.replace(params.world, n_agents=int(n_agents))
+    if world.n_agents < 1:
+        raise RegionError("at least one buoy is needed")
+    if radius_m is None:
+        region = region_from_file(path, area=world.region_area)
+    else:
+        if radius_m <= 0:
+            raise RegionError(f"the coverage radius must be positive, got {radius_m} m")
+        real = region_from_file(path, area=None)
+        across = 2 * math.sqrt(real.polygon.area / math.pi)  # m: the width of a round lake of the same area
+        if radius_m > across:
+            raise RegionError(f"--radius-m {radius_m:g}: one buoy's coverage is wider than the whole lake "
+                              f"({real.polygon.area:.4g} m², about {across:.4g} m across); give a radius below that")
+        unit = radius_m / params.coverage.radius  # metres per simulation metre
+        sim = check_polygon(affinity.scale(real.polygon, 1 / unit, 1 / unit, origin=(0, 0)), real.name)
+        region = dataclasses.replace(real, polygon=sim, scale=unit, notes=real.notes + (
+            f"real scale: 1 simulation metre = {unit:g} m (coverage radius {radius_m:g} m)",))
+        horizon = max(world.episode_length, math.ceil(world.episode_length * math.sqrt(sim.area / world.region_area)))
+        if horizon > MAX_HORIZON:
+            smallest = radius_m * math.sqrt(horizon / MAX_HORIZON) * 1.001
+            raise RegionError(f"--radius-m {radius_m:g}: {real.name} ({real.polygon.area:.4g} m²) is so many coverage "
+                              f"radii across that crossing it takes {horizon} steps (at most {MAX_HORIZON}); give a "
+                              f"radius of at least {smallest:.3g} m")
+        world = dataclasses.replace(world, episode_length=horizon)  # region_area stays the paper's: T's yardstick
+    return region, dataclasses.replace(params, world=world)
 
 
 def option_env(params: Params, region: str | Region, *, config: str | None = None, n_agents: int | None = None,
@@ -110,14 +151,14 @@ def option_env(params: Params, region: str | Region, *, config: str | None = Non
             return given
         return getattr(algo, key) if algo is not None else default
 
-    world = region_world(params, region if isinstance(region, str) else None)
+    world = region_world(params, region if isinstance(region, str) and region in params.regions else None)
     if n_agents is not None:
         world = dataclasses.replace(world, n_agents=int(n_agents))
     if episode_length is not None:
         world = dataclasses.replace(world, episode_length=int(episode_length))
     coverage = params.coverage if radius is None else scaled_coverage(params.coverage, float(radius))
     if isinstance(region, str):
-        region = make_region(region, params.regions[region], world.region_area)
+        region = named_or_file(params, region, world.region_area)
     fence = geofence if geofence is not UNSET else (algo.geofence if algo is not None else None)
     weight = union_weight if union_weight is not UNSET else (algo.union_weight if algo is not None else None)
     return CoverageEnv(
@@ -128,6 +169,17 @@ def option_env(params: Params, region: str | Region, *, config: str | None = Non
         wall=pick(shore, "shore", "fence") == "wall", union_credit=pick(union_credit, "union_credit", "shared"),
         pay=Pay(scale=float(pick(reward_scale, "reward_scale", 1.0))),
     )
+
+
+def named_or_file(params: Params, region: str, area: float) -> Region:
+    """A region of ``params.regions`` by name, or the outline in a vector file, scaled to ``area``."""
+    if region in params.regions:
+        return make_region(region, params.regions[region], area)
+    if Path(region).is_file():
+        return region_from_file(region, area=area)
+    raise RegionError(f"region {region!r}: neither a region of params.yaml ({', '.join(params.regions)}) nor a "
+                      "vector file; give one of those names or the path of a lake's outline (GeoJSON, GeoPackage, "
+                      "shapefile)")
 
 
 def coverage_area(params: Params) -> float:

@@ -35,6 +35,6 @@ def run(args: argparse.Namespace) -> int:
         animate_run,  # matplotlib's import is seconds: only once the inputs are known good
     )
 
-    out = animate_run(args.run, params, region, out, args.seed, progress=True)
+    out = animate_run(args.run, params, region, out, args.seed, progress=not args.no_progress)
     print(f"wrote {out}")
     return 0

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import logging
+import os
 import sys
 import warnings
 from contextlib import ExitStack
@@ -12,12 +14,24 @@ import shapely
 
 from replicate.core.artifacts import CheckpointError
 from replicate.core.schema import ConfigError
-from replicate.toolkit.cli import act, animate, compare, cover, evaluate, export, init, train, train_general, tune
+from replicate.toolkit.cli import (
+    act,
+    animate,
+    compare,
+    cover,
+    evaluate,
+    export,
+    init,
+    plan,
+    train,
+    train_general,
+    tune,
+)
 from replicate.world.regions import RegionError
 
-DESCRIPTION = ("The `replicate` command: train, evaluate, train-general, cover, export, act, tune, compare, init, "
-               "animate (`replicate COMMAND --help` for the options).")
-VERBS = (train, evaluate, train_general, cover, export, act, tune, compare, init, animate)  # the order of --help
+DESCRIPTION = ("The `replicate` command: train, evaluate, train-general, cover, plan, export, act, tune, compare, "
+               "init, animate (`replicate COMMAND --help` for the options).")
+VERBS = (train, evaluate, train_general, cover, plan, export, act, tune, compare, init, animate)  # the order of --help
 
 
 def common_options(suppress: bool) -> argparse.ArgumentParser:
@@ -25,11 +39,14 @@ def common_options(suppress: bool) -> argparse.ArgumentParser:
     value given before the verb alone unless given again)."""
     p = argparse.ArgumentParser(add_help=False)
     after = "_after_verb" if suppress else ""
-    p.add_argument("--params", dest=f"params{after}", metavar="FILE", default=None if suppress else "params.yaml",
-                   help="parameters file (params.yaml of the working folder, else the defaults installed with the "
-                        "package; `replicate init` writes an editable copy)")
+    p.add_argument("--params", dest=f"params{after}", metavar="FILE", default=None,
+                   help="parameters file (default: the one installed with the package; a params.yaml in the working "
+                        "folder is read only when given; `replicate init` writes an editable copy)")
     p.add_argument("--set", dest=f"set{after}", action="append", metavar="KEY=VALUE", default=None,
                    help="override a value of the parameters file, e.g. configs.tuned.n_envs=25 (repeatable)")
+    if suppress:
+        p.add_argument("--no-progress", action="store_true",
+                       help="no progress bars (also without a terminal, or with TQDM_DISABLE set)")
     return p
 
 
@@ -75,6 +92,8 @@ def parsed(argv: list[str] | None) -> argparse.Namespace:
         args.run = args.run or args.run_option
     args.params = args.params_after_verb or args.params
     args.set = (args.set or []) + (args.set_after_verb or [])
+    # bars only on a terminal: a log or a pipe gets no carriage returns
+    args.no_progress = args.no_progress or bool(os.environ.get("TQDM_DISABLE")) or not sys.stderr.isatty()
     return args
 
 
@@ -82,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = parsed(argv)
         warnings.simplefilter("default")
+        logging.basicConfig(level=logging.WARNING, format="replicate: %(message)s", stream=sys.stderr)  # diagnostics:
+        logging.getLogger("replicate").setLevel(logging.INFO)  # the package's notes, other libraries' warnings
         if args.command in ("train", "cover", "tune"):
             from replicate.learn.process import training_process
 

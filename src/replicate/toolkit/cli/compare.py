@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from replicate.core import artifacts
-from replicate.core.params import load_params
+from replicate.core.params import load_params, packaged
 from replicate.core.schema import ConfigError
 from replicate.toolkit.cli.inputs import (
     claim_out_file,
@@ -21,14 +21,14 @@ def add(sub, verb: dict, regions: str) -> None:
                        **verb)
     v.add_argument("--baseline", nargs="+", default=None, metavar="POLICY",
                    help="the baseline version's exported policies, one per training seed (at least "
-                        "yardstick.min_seeds; default: the standing baseline in yardstick/ beside --params, the "
+                        "yardstick.min_seeds; default: the standing baseline in yardstick/ beside --params (or of the "
+                        "working folder), the "
                         "current training values on yardstick.seeds, written by the train_yardstick stage)")
     v.add_argument("--candidate", nargs="+", required=True, metavar="POLICY",
                    help="the candidate version's exported policies, one per training seed (at least "
                         "yardstick.min_seeds)")
     v.add_argument("--out", required=True, help="output JSON: every cell, each seed's score and the verdict")
     v.add_argument("--force", action="store_true", help="replace --out if it exists")
-    v.add_argument("--no-progress", action="store_true", help="no progress bar")
     v.add_argument("--workers", type=int, default=None, help="processes, one lake each (default: pipeline.workers)")
     v.add_argument("--executor", choices=("local", "ray"), default=None,
                    help="local processes or Ray tasks (default: pipeline.executor)")
@@ -42,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
     from replicate.core.executor import configured_executor
 
     params = load_params(args.params, overrides(args.set))
-    baseline = tuple(args.baseline) if args.baseline else standing_baseline(params, Path(args.params).parent / STANDING)
+    beside = Path(args.params).parent if args.params else Path(".")  # the working folder without --params
+    baseline = tuple(args.baseline) if args.baseline else standing_baseline(params, beside / STANDING)
     versions = Versions(baseline, tuple(args.candidate))
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {args.workers}")
@@ -56,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
     cells = d.lakes * len(d.fleets) * len(d.starts) * len(d.events)
     print(f"{cells} cells (yardstick lakes x fleets x starts x events), {len(baseline) + len(args.candidate)} "
           f"policies{standing}, {runs_on}")
-    result = compare_versions(args.params, versions, workers, executor, overrides(args.set), not args.no_progress)
+    result = compare_versions(args.params or str(packaged("params.yaml")), versions, workers, executor,
+                              overrides(args.set), not args.no_progress)
     artifacts.write_json(out, result)
     for label, score in result["scores"].items():
         print(f"{label} {result['policies'][label]}: coverage / lloyd_tuned {score:.4f}")

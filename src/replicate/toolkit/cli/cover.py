@@ -10,6 +10,7 @@ from replicate.core import artifacts
 from replicate.core.params import Params, load_params
 from replicate.core.schema import MAX_AGENTS, ConfigError, check_seed, positive
 from replicate.toolkit.cli.inputs import (
+    check_episodes,
     claim_run_folder,
     overrides,
 )
@@ -41,7 +42,6 @@ def add(sub, verb: dict, regions: str) -> None:
                    help="real scale: coverage radius in metres (default: the paper's 9 m² scale)")
     c.add_argument("--out", default="my-runs/cover", help="output folder")
     c.add_argument("--force", action="store_true", help="replace what --out holds (the folder is cleared first)")
-    c.add_argument("--no-progress", action="store_true", help="no progress bars")
     c.set_defaults(func=run)
 
 
@@ -72,6 +72,8 @@ def check_cover_args(args: argparse.Namespace, params: Params) -> None:
     """Refuse a bad combination of `cover`'s options by name, before anything is written; fill the defaults of
     ``--method cr`` and the general policy's file."""
     check_seed(args.seed)
+    check_episodes(args.episodes)
+    check_episodes(args.finetune, "--finetune")
     if args.method == "general":
         if args.episodes is not None:
             raise ConfigError("--episodes goes with --method cr; the general policy is fine-tuned with --finetune "

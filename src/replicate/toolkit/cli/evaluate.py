@@ -34,7 +34,6 @@ def add(sub, verb: dict, regions: str) -> None:
                    help="output JSON (default: RUN/metrics.json, my-runs/baseline-NAME-REGION.json or, with "
                         "--policy, my-runs/policy-REGION-nN.json)")
     e.add_argument("--force", action="store_true", help="replace --out if it exists")
-    e.add_argument("--no-progress", action="store_true", help="no progress bars")
     g = e.add_argument_group("a general policy, zero-shot on any region (instead of a run)")
     g.add_argument("--policy", default=None, help="a general policy file (`replicate export` of a general run)")
     g.add_argument("--n-agents", type=int, default=None, help="buoys (default: world.n_agents, 9); the region is "

@@ -1,4 +1,5 @@
-"""``replicate export``: A run's actors as one TorchScript file with its metadata."""
+"""``replicate export``: A run's actors as one TorchScript file with its metadata; or an exported general policy
+again, with its control contract for one deployment's SI scale (``--policy FILE --radius-m R --speed-ms V``)."""
 
 from __future__ import annotations
 
@@ -25,6 +26,11 @@ def add(sub, verb: dict, regions: str) -> None:
     x.add_argument("--baseline-gains", default=None, metavar="FILE",
                    help="a general run: carry these baseline gains (`replicate tune general-baselines`) in the "
                         "policy, for `evaluate --policy` to compare with")
+    d = x.add_argument_group("an exported general policy, for one deployment (instead of a run)")
+    d.add_argument("--policy", default=None, metavar="FILE", help="a general policy file to re-export with its "
+                   "control contract in SI (control period, units of every input, the action's velocity)")
+    d.add_argument("--radius-m", type=float, default=None, help="the buoys' sensing radius, metres")
+    d.add_argument("--speed-ms", type=float, default=None, help="the buoys' top speed, m/s")
     x.set_defaults(func=run)
 
 
@@ -33,8 +39,11 @@ def run(args: argparse.Namespace) -> int:
     from replicate.toolkit.export import export_general, export_policy
 
     params = load_params(args.params, overrides(args.set))
+    if args.policy is not None or args.radius_m is not None or args.speed_ms is not None:
+        return export_deployment(args, params)
     if args.run is None:
-        raise ConfigError("export needs a run folder: `replicate export RUN`")
+        raise ConfigError("export needs a run folder (`replicate export RUN`) or a general policy with the "
+                          "deployment's scale (`--policy FILE --radius-m R --speed-ms V --out FILE`)")
     if (Path(args.run) / "actor.pt").exists():  # a general run: one shared actor for any fleet and lake
         if args.region is not None:
             raise ConfigError(f"{args.run}: a general run has no region of its own; export it without --region")
@@ -50,6 +59,27 @@ def run(args: argparse.Namespace) -> int:
     out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force, held=args.held)
     meta = export_policy(Path(args.run) / "actors.pt", region, out, params.world.sensitivity)
     print(f"exported {meta['n_agents']} actors ({meta['observation']}) for {meta['region']} to {out}")
+    return 0
+
+
+def export_deployment(args: argparse.Namespace, params) -> int:
+    """``export --policy FILE --radius-m R --speed-ms V --out FILE``: the general policy with its SI contract."""
+    from replicate.toolkit.deploy import export_for
+    from replicate.world.units import Units
+
+    if args.run is not None or args.region is not None or args.baseline_gains is not None:
+        raise ConfigError("--policy re-exports an exported general policy; give no run folder, --region or "
+                          "--baseline-gains with it")
+    if args.policy is None or args.radius_m is None or args.speed_ms is None or args.out is None:
+        raise ConfigError("a deployment's export needs --policy FILE, --radius-m, --speed-ms and --out FILE")
+    if not Path(args.policy).is_file():
+        raise ConfigError(f"--policy {args.policy}: no such file")
+    units = Units.of(params.world, params.coverage, args.radius_m, args.speed_ms)
+    out = claim_out_file(Path(args.out), args.force, held=args.held)
+    si = export_for(args.policy, out, params, units)["contract"]["si"]
+    print(f"exported {args.policy} for buoys of {si['radius_m']:g} m at {si['top_speed_ms']:g} m/s to {out}: a "
+          f"control period of {si['control_period_s']:.4g} s, radio and shore ranges {si['comm_range_m']:g} m and "
+          f"{si['shore_range_m']:g} m (metadata.json: contract)")
     return 0
 
 

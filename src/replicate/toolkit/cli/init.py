@@ -28,6 +28,6 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.dir}: is a file; choose a folder")
     target = claim_out_file(Path(args.dir) / "params.yaml", args.force, "init", held=args.held)
     artifacts.atomic_write_bytes(target, packaged("params.yaml").read_bytes())
-    print(f"wrote {target}: every value of the toolkit, commented; edit it and pass --params {target} (or run "
-          f"from {args.dir})")
+    print(f"wrote {target}: every value of the toolkit, commented; edit it and pass --params {target} (a "
+          "params.yaml in the working folder is read only when given)")
     return 0

@@ -50,6 +50,16 @@ def overrides(pairs: list[str] | None) -> dict:
     return out
 
 
+MAX_EPISODES = 1_000_000  # 100 times the paper's 10,000: days of one core; beyond, a typo (1e12)
+
+
+def check_episodes(episodes: int | None, option: str = "--episodes") -> None:
+    """Refuse a number of training episodes no run could finish, by name."""
+    if episodes is not None and episodes > MAX_EPISODES:
+        raise ConfigError(f"{option} {episodes}: more than {MAX_EPISODES:,} episodes (100 times the paper's 10,000, "
+                          "days of one core at the paper's size); give fewer")
+
+
 def resume_command(run: Path) -> str:
     import shlex
 

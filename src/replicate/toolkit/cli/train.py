@@ -14,6 +14,7 @@ from replicate.core.outputs import locked
 from replicate.core.params import Params, load_params, run_config
 from replicate.core.schema import ConfigError, check_seed
 from replicate.toolkit.cli.inputs import (
+    check_episodes,
     claim_run_folder,
     overrides,
     read_record,
@@ -43,7 +44,6 @@ def add(sub, verb: dict, regions: str) -> None:
                         "started with (nothing else needed)")
     t.add_argument("--force", action="store_true",
                    help="train into --out even if it holds a run or other files (the folder is cleared first)")
-    t.add_argument("--no-progress", action="store_true", help="no progress bar")
     t.set_defaults(func=run)
 
 
@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.out or f"my-runs/{args.config}-{args.method}-{region.name}-s{seed}")
     for note in region.notes:
         print(f"region {region.name}: {note}", file=sys.stderr)
+    check_episodes(episodes)
     check_schedule(rc, episodes, every)
     created, replaced = False, False
     if args.resume:

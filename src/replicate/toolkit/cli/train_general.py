@@ -10,6 +10,7 @@ from pathlib import Path
 from replicate.core.params import load_params
 from replicate.core.schema import ConfigError, check_seed
 from replicate.toolkit.cli.inputs import (
+    check_episodes,
     overrides,
 )
 
@@ -22,7 +23,6 @@ def add(sub, verb: dict, regions: str) -> None:
     tg.add_argument("--episodes", type=int, default=None, help="episodes (default: general.episodes)")
     tg.add_argument("--out", required=True, help="the run folder to write (actor.pt, curve.csv.gz, run.json)")
     tg.add_argument("--force", action="store_true", help="replace a finished run in --out")
-    tg.add_argument("--no-progress", action="store_true", help="no progress bar")
     tg.set_defaults(func=run)
 
 
@@ -37,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
     params = load_params(args.params, overrides(args.set))
     check_seed(args.seed)
     config = params.general
+    check_episodes(args.episodes)
     if args.episodes is not None:
         if args.episodes < config.n_envs:
             raise ConfigError(f"--episodes must be at least general.n_envs ({config.n_envs}), got {args.episodes}")

@@ -30,7 +30,6 @@ def add(sub, verb: dict, regions: str) -> None:
                    help="where trials run: local (one after another) or ray (Ray tasks; RAY_ADDRESS joins a "
                         "cluster; several `replicate tune` may share one study through a storage URL) (default: "
                         "pipeline.executor)")
-    u.add_argument("--no-progress", action="store_true", help="no progress bars")
     u.set_defaults(func=run)
 
 

@@ -1,0 +1,74 @@
+"""Section 7 of `make bench`: what a field team waits for. The start-up of `replicate --help` (best of 5 fresh
+processes), the per-step latency of `replicate act --stream --real` once it has started (a general policy exported
+for 25 m buoys at 1 m/s, 9 buoys, 2,000 steps through a pipe, one step answered before the next is sent), and the
+wall time of `replicate plan` on Lake Karaguz (9 buoys of 25 m at 1 m/s, the whole default mission)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+REPLICATE = [str(Path(sys.executable).parent / "replicate")]  # the installed command, as a user runs it
+
+
+def help_startup(repeats: int = 5) -> float:
+    """Seconds of the fastest of ``repeats`` fresh `replicate --help`."""
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        subprocess.run([*REPLICATE, "--help"], check=True, capture_output=True, cwd=ROOT)
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def stream_latency(policy: Path, steps: int = 2000, buoys: int = 9) -> tuple[float, float]:
+    """(seconds to the first answer, seconds per step after it) of `act --stream --real` on ``policy``."""
+    rng = np.random.default_rng(0)
+    obs = rng.uniform(0, 50, size=(steps + 1, buoys, 22))
+    obs[..., 10:14] = 1.0  # the heard-masks
+    lines = [json.dumps(o.round(3).tolist()) + "\n" for o in obs]
+    start = time.perf_counter()
+    proc = subprocess.Popen([*REPLICATE, "act", "--policy", str(policy), "--stream", "--real"], cwd=ROOT, text=True,
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    proc.stdin.write(lines[0])
+    proc.stdin.flush()
+    proc.stdout.readline()
+    first = time.perf_counter() - start
+    start = time.perf_counter()
+    for line in lines[1:]:
+        proc.stdin.write(line)
+        proc.stdin.flush()
+        reply = proc.stdout.readline()
+    per_step = (time.perf_counter() - start) / steps
+    proc.stdin.close()
+    proc.wait()
+    assert "error" not in reply, reply
+    return first, per_step
+
+
+def plan_seconds(out: Path) -> float:
+    start = time.perf_counter()
+    subprocess.run([*REPLICATE, "plan", "--region", "data/lakes/lake_karaguz.geojson", "--buoys", "9", "--radius-m",
+                    "25", "--speed-ms", "1.0", "--out", str(out)], check=True, capture_output=True, cwd=ROOT)
+    return time.perf_counter() - start
+
+
+def field_section() -> None:
+    print("== 7. what a field team waits for ==")
+    print(f"`replicate --help` start-up: {help_startup():.2f} s (best of 5 fresh processes)")
+    with tempfile.TemporaryDirectory() as tmp:
+        policy = Path(tmp) / "buoy.pt"
+        subprocess.run([*REPLICATE, "export", "--policy", "src/replicate/defaults/general.pt", "--radius-m", "25",
+                        "--speed-ms", "1.0", "--out", str(policy)], check=True, capture_output=True, cwd=ROOT)
+        first, per_step = stream_latency(policy)
+        print(f"`replicate act --stream --real` (general policy, 9 buoys): first answer after {first:.2f} s, then "
+              f"{per_step * 1e3:.3f} ms per step (target <= 1 ms: {per_step / 1e-3:.2f}x of it)")
+        print(f"`replicate plan` on Lake Karaguz (9 buoys, 25 m, 1 m/s, the whole mission): "
+              f"{plan_seconds(Path(tmp) / 'plan'):.1f} s")
