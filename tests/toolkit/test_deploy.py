@@ -112,3 +112,20 @@ def test_a_stray_params_yaml_in_the_working_folder_is_not_read(tmp_path, monkeyp
     assert main([*argv, "buoy.pt"]) == 0, capsys.readouterr().err
     assert main(["--params", "params.yaml", *argv, "again.pt"]) == 2
     assert "params.yaml" in capsys.readouterr().err and not (tmp_path / "again.pt").exists()
+
+
+def test_the_onnx_policy_commands_what_the_torchscript_one_does(params, tmp_path, sim_obs):
+    """ONNX for runtimes without torch, run by onnxruntime: the same commands for 9 and for 30 buoys, and the
+    contract in its metadata."""
+    onnxruntime = pytest.importorskip("onnxruntime")
+    import onnx
+
+    units = Units.of(params.world, params.coverage, 25.0, 1.0)
+    export_for(packaged("general.pt"), tmp_path / "buoy.pt", params, units, tmp_path / "buoy.onnx")
+    session = onnxruntime.InferenceSession(str(tmp_path / "buoy.onnx"))
+    fleet = np.concatenate([sim_obs, sim_obs, sim_obs, sim_obs[:3]])  # 30 buoys
+    for obs in (sim_obs, fleet):
+        got = session.run(["action"], {"obs": obs.astype(np.float32)})[0]
+        np.testing.assert_allclose(got, act(packaged("general.pt"), obs), atol=1e-5)
+    props = {p.key: p.value for p in onnx.load(str(tmp_path / "buoy.onnx")).metadata_props}
+    assert json.loads(props["buoy_policy"])["contract"]["si"]["control_period_s"] == pytest.approx(14.1421, abs=1e-4)

@@ -45,6 +45,7 @@ from replicate.world.env import start_patch
 from replicate.world.osm import OSMUnavailable, outline_from_osm_xml, query_osm
 from replicate.world.regions import RegionError, write_run_region
 from replicate.world.scenario import horizon, scaled_setup
+from replicate.world.units import BOB_SPEED, Units
 
 
 def outline_file(region: str | None, place: str | None, name: str | None, workdir: Path) -> Path:
@@ -101,12 +102,15 @@ def cover(
     return summary
 
 
-def deployment(region, params: Params, n_agents: int, steps: int) -> dict:
+def deployment(region, params: Params, n_agents: int, steps: int, speed_ms: float = BOB_SPEED) -> dict:
     """What a summary says of the deployment: the lake, its CRS and scale, its area, the fleet, the coverage
-    radius in metres, the episode's steps."""
+    radius in metres, the episode's steps, and in SI (``world.units``, buoys of top speed ``speed_ms``) the control
+    period and the mission's duration."""
+    units = Units.of(params.world, params.coverage, params.coverage.radius * region.scale, speed_ms)
     return {"region": region.name, "utm_crs": region.utm_crs, "scale_m_per_sim_m": region.scale,
             "area_m2": region.area * region.scale**2, "n_agents": n_agents,
-            "radius_m": params.coverage.radius * region.scale, "episode_length": steps}
+            "radius_m": params.coverage.radius * region.scale, "episode_length": steps,
+            "top_speed_ms": speed_ms, "control_period_s": units.period_s, "mission_s": units.steps_time_s(steps)}
 
 
 def finetuned(policy: Path, module, meta: dict, params: Params, region, steps: int, episodes: int, seed: int,

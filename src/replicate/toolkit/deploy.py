@@ -1,6 +1,7 @@
 """A policy on a buoy's computer: its commands from observations (``replicate act``, one call or a stream of
 steps), and an exported general policy re-exported for one deployment's SI scale with its control contract
-(``replicate export --policy FILE --radius-m R --speed-ms V``; ``world.units.contract``)."""
+(``replicate export --policy FILE --radius-m R --speed-ms V``; ``world.units.contract``), as TorchScript and, for
+runtimes without torch, as ONNX (the ``onnx`` extra: ``onnx`` to write it, ``onnxruntime`` to run it)."""
 
 from __future__ import annotations
 
@@ -101,8 +102,10 @@ def stream(actor: Actor, lines: IO[str] | None = None, out: IO[str] | None = Non
     return steps
 
 
-def export_for(policy: str | Path, out: str | Path, params: Params, units: Units) -> dict:
-    """A general policy re-exported with its control contract for one deployment's SI scale → the metadata."""
+def export_for(policy: str | Path, out: str | Path, params: Params, units: Units,
+               onnx_out: str | Path | None = None) -> dict:
+    """A general policy re-exported with its control contract for one deployment's SI scale → the metadata; with
+    ``onnx_out`` also as ONNX (``export_onnx``)."""
     module, meta = load_policy(policy)
     if meta.get("n_agents") != "any":
         raise ValueError(f"{policy}: a policy for {meta.get('n_agents')} buoys of one region; --radius-m and "
@@ -111,4 +114,27 @@ def export_for(policy: str | Path, out: str | Path, params: Params, units: Units
     meta = {k: v for k, v in meta.items() if k != "checksum"}
     meta["contract"] = contract(params.world, params.coverage, sensors, meta["observation_layout"], units)
     save_policy(module, meta, out)
+    if onnx_out is not None:
+        export_onnx(module, meta, onnx_out)
     return meta
+
+
+def export_onnx(module, meta: dict, out: str | Path) -> None:
+    """The policy as an ONNX graph (opset 17) with input ``obs`` [buoys, obs_dim] and output ``action`` [buoys, 2],
+    any number of buoys, its metadata (the contract) as the model's ``metadata_props["buoy_policy"]``; written
+    atomically. The TorchScript exporter is torch's only one that takes a scripted module (torch.export does not
+    trace TorchScript), deprecated upstream: its warning is silenced here."""
+    import warnings
+
+    import onnx
+
+    from replicate.core import artifacts
+
+    obs = torch.zeros(2, len(meta["observation_layout"]))
+    with artifacts.atomic_path(out) as tmp, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(module, (obs,), str(tmp), dynamo=False, opset_version=17, input_names=["obs"],
+                          output_names=["action"], dynamic_axes={"obs": {0: "buoys"}, "action": {0: "buoys"}})
+        model = onnx.load(str(tmp))
+        onnx.helper.set_model_props(model, {"buoy_policy": json.dumps(meta)})
+        onnx.save(model, str(tmp))

@@ -104,8 +104,11 @@ def check_cover_args(args: argparse.Namespace, params: Params) -> None:
 def print_cover(args: argparse.Namespace, s: dict, out: Path) -> None:
     """The summary of a `cover` run, as the user reads it."""
     cov, lloyd = s["coverage"], s["lloyd_coverage"]
-    print(f"{s['region']}: {s['n_agents']} buoys of radius {s['radius_m']:.3g} m on {s['area_m2']:.4g} m² "
-          f"({s['utm_crs']}, 1 sim m = {s['scale_m_per_sim_m']:.4g} m), T = {s['episode_length']}")
+    chosen = "" if args.radius_m else " (the paper's density; give --radius-m for your buoys)"
+    print(f"{s['region']}: {s['n_agents']} buoys of radius {s['radius_m']:.3g} m{chosen} on {s['area_m2']:.4g} m² "
+          f"({s['utm_crs']}, 1 sim m = {s['scale_m_per_sim_m']:.4g} m); at {s['top_speed_ms']:g} m/s a control "
+          f"period of {s['control_period_s']:.3g} s, {s['episode_length']} periods: a mission of "
+          f"{s['mission_s'] / 60:.1f} min (`replicate plan` writes its tracks as GIS files)")
     if args.method == "general":
         best = s["baselines"]["best_layout"]["coverage"]["mean"]
         lloyd_name = "tuned Lloyd" if s["lloyd_baseline"] == "lloyd_tuned" else "Lloyd"

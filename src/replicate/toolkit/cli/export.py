@@ -31,6 +31,8 @@ def add(sub, verb: dict, regions: str) -> None:
                    "control contract in SI (control period, units of every input, the action's velocity)")
     d.add_argument("--radius-m", type=float, default=None, help="the buoys' sensing radius, metres")
     d.add_argument("--speed-ms", type=float, default=None, help="the buoys' top speed, m/s")
+    d.add_argument("--onnx", default=None, metavar="FILE", help="also write the policy as ONNX, for runtimes "
+                   "without torch (needs `pip install '.[onnx]'`)")
     x.set_defaults(func=run)
 
 
@@ -70,16 +72,22 @@ def export_deployment(args: argparse.Namespace, params) -> int:
     if args.run is not None or args.region is not None or args.baseline_gains is not None:
         raise ConfigError("--policy re-exports an exported general policy; give no run folder, --region or "
                           "--baseline-gains with it")
+    if args.onnx is not None:
+        try:
+            import onnx  # noqa: F401 - the extra this option needs
+        except ImportError:
+            raise ConfigError("--onnx needs the onnx extra: pip install '.[onnx]'") from None
     if args.policy is None or args.radius_m is None or args.speed_ms is None or args.out is None:
         raise ConfigError("a deployment's export needs --policy FILE, --radius-m, --speed-ms and --out FILE")
     if not Path(args.policy).is_file():
         raise ConfigError(f"--policy {args.policy}: no such file")
     units = Units.of(params.world, params.coverage, args.radius_m, args.speed_ms)
     out = claim_out_file(Path(args.out), args.force, held=args.held)
-    si = export_for(args.policy, out, params, units)["contract"]["si"]
+    onnx_out = None if args.onnx is None else claim_out_file(Path(args.onnx), args.force, "--onnx", held=args.held)
+    si = export_for(args.policy, out, params, units, onnx_out)["contract"]["si"]
     print(f"exported {args.policy} for buoys of {si['radius_m']:g} m at {si['top_speed_ms']:g} m/s to {out}: a "
           f"control period of {si['control_period_s']:.4g} s, radio and shore ranges {si['comm_range_m']:g} m and "
-          f"{si['shore_range_m']:g} m (metadata.json: contract)")
+          f"{si['shore_range_m']:g} m (metadata.json: contract)" + (f"; and as ONNX to {onnx_out}" if onnx_out else ""))
     return 0
 
 
