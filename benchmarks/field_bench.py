@@ -1,7 +1,9 @@
 """Section 7 of `make bench`: what a field team waits for. The start-up of `replicate --help` (best of 5 fresh
 processes), the per-step latency of `replicate act --stream --real` once it has started (a general policy exported
 for 25 m buoys at 1 m/s, 9 buoys, 2,000 steps through a pipe, one step answered before the next is sent), and the
-wall time of `replicate plan` on Lake Karaguz (9 buoys of 25 m at 1 m/s, the whole default mission)."""
+wall time of `replicate plan` on Lake Karaguz (9 buoys of 25 m at 1 m/s, the whole default mission) and of
+`replicate evaluate --policy` on Mae Kuang reservoir (1,712 vertices: 100 episodes of the policy, naive swarming and
+Lloyd, and the best layout; the target is 30 s)."""
 
 from __future__ import annotations
 
@@ -60,6 +62,14 @@ def plan_seconds(out: Path) -> float:
     return time.perf_counter() - start
 
 
+def evaluate_seconds(out: Path) -> float:
+    start = time.perf_counter()
+    subprocess.run([*REPLICATE, "evaluate", "--policy", "src/replicate/defaults/general.pt", "--region",
+                    "data/lakes/mae_kuang_reservoir.geojson", "--out", str(out)], check=True, capture_output=True,
+                   cwd=ROOT)
+    return time.perf_counter() - start
+
+
 def field_section() -> None:
     print("== 7. what a field team waits for ==")
     print(f"`replicate --help` start-up: {help_startup():.2f} s (best of 5 fresh processes)")
@@ -72,3 +82,6 @@ def field_section() -> None:
               f"{per_step * 1e3:.3f} ms per step (target <= 1 ms: {per_step / 1e-3:.2f}x of it)")
         print(f"`replicate plan` on Lake Karaguz (9 buoys, 25 m, 1 m/s, the whole mission): "
               f"{plan_seconds(Path(tmp) / 'plan'):.1f} s")
+        seconds = evaluate_seconds(Path(tmp) / "evaluation.json")
+        print(f"`replicate evaluate --policy` on Mae Kuang reservoir: {seconds:.1f} s (target <= 30 s: "
+              f"{seconds / 30:.2f}x of it)")

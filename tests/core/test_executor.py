@@ -111,3 +111,13 @@ def test_ctrl_c_stops_the_workers_at_once(tmp_path):
     proc.send_signal(signal.SIGINT)
     proc.wait(timeout=60)
     assert time.monotonic() - start < 10 and "KeyboardInterrupt" in proc.stderr.read()
+
+
+def test_beside_returns_a_closures_value_or_raises_its_error():
+    """``Beside`` runs a closure in a forked process (evaluate --policy runs Lloyd's episodes so)."""
+    from replicate.core.executor import Beside
+
+    data = list(range(1000))
+    assert Beside(lambda: sum(x * x for x in data)).result() == sum(x * x for x in data)
+    with pytest.raises(ZeroDivisionError):
+        Beside(lambda: 1 / 0).result()

@@ -171,3 +171,24 @@ def test_a_number_in_set_is_a_number_and_the_version_is_printed(capsys):
     with pytest.raises(SystemExit) as done:
         main(["--version"])
     assert done.value.code == 0 and capsys.readouterr().out.strip() == f"replicate {version('buoy-swarm-coverage')}"
+
+
+def test_a_full_disk_names_the_file_and_the_run_says_it_stopped(replicate, tmp_path, monkeypatch):
+    """ENOSPC while a checkpoint is written: the message names the file and the fix (exit 2), no temporary file is
+    left, and run.json says the run stopped (not "running"), so `--resume` is what to do once there is room."""
+    import errno
+
+    import torch
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(torch, "save", full)
+    out = tmp_path / "run"
+    code, err = replicate(*SMALL, "train", "--config", "tuned", "--method", "cr", "--region", "square",
+                          "--episodes", "50", "--checkpoint-every", "10", "--out", str(out))
+    assert code == 2 and "No space left on device (writing" in err and "checkpoint" in err, err
+    assert "free some space" in err
+    record = json.loads((out / "run.json").read_text())
+    assert record["status"] == "stopped" and "No space left" in record["stopped_by"]
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no half-written temporary file

@@ -98,3 +98,22 @@ def test_bad_missions_are_refused_by_name(replicate, tmp_path, argv, message):
                           "--out", str(out), *argv)
     assert code == 2 and message in err, err
     assert not out.exists()  # nothing half-written
+
+
+def test_evaluate_keeps_a_lake_in_metres_and_states_its_units(replicate, tmp_path):
+    """``evaluate --policy --radius-m --speed-ms --current-ms``: the lake in metres, the drift converted, and the
+    output's control period and mission in seconds (one fleet, few episodes: the arithmetic, not the score)."""
+    out = tmp_path / "e.json"
+    code, err = replicate("--set", "evaluate.episodes=4", "evaluate", "--policy", "src/replicate/defaults/general.pt",
+                          "--region", str(LAKES / "lake_karaguz.geojson"), "--n-agents", "12", "--radius-m", "300",
+                          "--speed-ms", "0.5", "--current-ms", "0.1,0", "--out", str(out))
+    assert code == 0, err
+    result = json.loads(out.read_text())
+    si = result["si"]
+    assert si["radius_m"] == pytest.approx(300) and si["top_speed_ms"] == pytest.approx(0.5)
+    assert si["control_period_s"] == pytest.approx(300 / 0.5 * 2 * np.sqrt(2) / 0.5 * 0.1)
+    assert si["mission_s"] == pytest.approx(result["steps"] * si["control_period_s"])
+    assert result["current"][0] == pytest.approx(0.1 / 0.5 * 2 * np.sqrt(2))  # 20 % of top speed
+    code, err = replicate("evaluate", "--policy", "src/replicate/defaults/general.pt", "--region", "square",
+                          "--radius-m", "300", "--out", str(tmp_path / "f.json"))
+    assert code == 2 and "not a file" in err

@@ -189,5 +189,16 @@ def test_a_region_narrower_than_the_start_patch_is_refused_by_name(params):
 
     strip = shapely.box(0, 0, 3800, 1)
     strip = shapely.affinity.scale(strip, (9 / strip.area) ** 0.5, (9 / strip.area) ** 0.5, origin=(0, 0))
-    with pytest.raises(RegionError, match=r"too narrow .* 0.5 m start patch: it is at most 0.0487 simulation m wide"):
+    with pytest.raises(RegionError, match=r"too narrow .* 0.5 m start patch: the widest circle of open water in it "
+                                          r"is 0.048\d simulation m across"):
         CoverageEnv(Region("river", strip), params.world, params.coverage)
+
+
+def test_an_island_filling_the_lake_is_measured_by_the_water_around_it(params):
+    """A 9 m² lake around an island that leaves a 0.3 m moat: the message gives the moat's width, not the lake's
+    bounding box (3.4 m)."""
+    from replicate.world.regions import Region, RegionError
+
+    lake = shapely.box(0, 0, 3.4, 3.4).difference(shapely.box(0.3, 0.3, 3.1, 3.1))
+    with pytest.raises(RegionError, match=r"widest circle of open water in it is 0.3\d* simulation m across"):
+        CoverageEnv(Region("moat", lake), params.world, params.coverage)

@@ -19,6 +19,7 @@ from replicate.compare import baselines, metrics
 from replicate.compare.best_layout import best_coverage
 from replicate.compare.stats import mean_interval
 from replicate.core import artifacts
+from replicate.core.executor import Beside
 from replicate.core.params import Params, RunConfig, run_config
 from replicate.core.schema import ConfigError
 from replicate.core.sections import SensorsConfig
@@ -255,7 +256,7 @@ class Phases:
 def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
                     lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False,
                     seeds: dict[Hashable, str | Path] | None = None, geodesic: bool = True, naive: bool = True,
-                    best_layout: bool = True) -> dict:
+                    best_layout: bool = True, beside: bool = False) -> dict:
     """A general policy (``export.export_general``) on ``region`` with ``n_agents`` buoys, zero-shot: behind the
     wall, on its local sensors, ``evaluate.episodes`` episodes from the evaluation seed at ``start``, losing
     ``lose`` buoys half-way, in a uniform ``current`` (m/s). Beside it, under the same physics, starts and events,
@@ -265,7 +266,8 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     outside the water at any step of any episode. ``seeds`` ({label: policy file}, e.g. every trained seed of
     the general policy) are run on the same episodes, each under ``"seeds"`` with its ``coverage`` and
     ``max_outside_m``; the baselines run once for all. ``geodesic``, ``naive`` and ``best_layout`` False leave
-    that comparison out (its ratio is then None); Lloyd always runs."""
+    that comparison out (its ratio is then None); Lloyd always runs. ``beside`` runs Lloyd's episodes in a second
+    process while this one runs the rest (a command's wall time on two cores; the same numbers)."""
 
     module, meta = read_general_policy(policy_path)
     others = {label: read_general_policy(path) for label, path in (seeds or {}).items()}
@@ -288,6 +290,8 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
                 "max_outside_m": float(distance_outside(region.polygon, positions).max()) * region.scale}
 
     rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic, naive)
+    lloyd_key = lloyd_name(rivals)
+    aside = Beside(lambda: covered(episodes(rivals[lloyd_key], None)[1])) if beside else None
     with Phases(region.name, 1 + len(others) + len(rivals) + best_layout, progress) as phase:
         phase("the policy")
         out = {"kind": "general policy", "policy": str(policy_path), "region": region.name, "n_agents": n_agents,
@@ -296,18 +300,36 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
         for label, policy in others.items():
             phase(f"seed {label}")
             out.setdefault("seeds", {})[label] = learned(*policy)
-        for name, policy in rivals.items():
-            phase(name)
-            out["baselines"][name] = {"coverage": covered(episodes(policy, None)[1]), "gains": how}
-        best = 0.0
+        limit = (lambda: best_coverage(region.polygon, n_agents - lose, params.coverage.radius,
+                                       params.coverage.edges)) if best_layout else None
+        out["baselines"], best = rivals_and_limit(rivals, lambda policy: covered(episodes(policy, None)[1]), limit,
+                                                  {lloyd_key: aside} if aside else {}, phase)
+        for name in rivals:
+            out["baselines"][name]["gains"] = how
         if best_layout:
-            phase("the best layout")
-            best = best_coverage(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges)
             out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
-    lloyd = out["baselines"][lloyd_name(rivals)]["coverage"]["mean"]
+    lloyd = out["baselines"][lloyd_key]["coverage"]["mean"]
     out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None
     out["ratio_to_best"] = out["coverage"]["mean"] / best if best > 0 else None
     return out
+
+
+def rivals_and_limit(rivals: dict, covered, limit, aside: dict, phase) -> tuple[dict, float]:
+    """Each rival's coverage (``covered(policy)``, or the result of its ``aside`` run in a second process) and
+    the best layout's (``limit()``, 0 without one) → ({name: {"coverage"}}, best). With a rival aside the best
+    layout is searched first, while it runs."""
+    best = 0.0
+    if limit is not None and aside:
+        phase("the best layout")
+        best = limit()
+    out = {}
+    for name, policy in rivals.items():
+        phase(name)
+        out[name] = {"coverage": aside[name].result() if name in aside else covered(policy)}
+    if limit is not None and not aside:
+        phase("the best layout")
+        best = limit()
+    return out, best
 
 
 def fleet_policy(module) -> baselines.Policy:

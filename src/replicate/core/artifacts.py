@@ -40,6 +40,11 @@ def atomic_file(path: str | Path) -> Iterator[BinaryIO]:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        if exc.filename is not None:
+            raise
+        raise OSError(exc.errno, f"{exc.strerror} (writing {path})") from exc  # a full disk names no file
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -115,3 +115,36 @@ def parallel_slots(executor: str, workers: int) -> int:
     if check_executor(executor) == "ray":
         return max(1, int(ray_runtime().cluster_resources().get("CPU", 1)))
     return max(1, workers)
+
+
+class Beside:
+    """``fn()`` computed in a forked process while this one goes on (a command's second core); ``result()`` waits
+    for it and returns its value or raises its error. Forked: ``fn`` may be a closure, and nothing is imported
+    again."""
+
+    def __init__(self, fn: Callable[[], object]):
+        context = multiprocessing.get_context("fork")
+        self.receive, send = context.Pipe(duplex=False)
+
+        def run() -> None:
+            try:
+                send.send((True, fn()))
+            except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
+                send.send((False, exc))
+
+        self.process = context.Process(target=run, daemon=True)
+        self.process.start()
+        send.close()
+
+    def result(self):
+        try:
+            ok, value = self.receive.recv()
+        except EOFError:
+            raise RuntimeError(f"the process beside this one ended without a result (exit code "
+                               f"{self.process.exitcode})") from None
+        finally:
+            self.process.join()
+        if not ok:
+            raise value
+        return value
+

@@ -63,10 +63,11 @@ def start_patch(region: Polygon, side: float, at: str = "lower_left") -> Polygon
     minx, miny, maxx, maxy = region.bounds
     inner = region.buffer(-side / 2, join_style="mitre")
     if inner.is_empty:
-        width = min(_sides(shapely.minimum_rotated_rectangle(region)))
+        width = 2 * shapely.length(shapely.maximum_inscribed_circle(region, tolerance=side / 1000))  # islands too
         raise RegionError(
-            f"the region is too narrow for the buoys' {side:g} m start patch: it is at most {width:.3g} simulation "
-            f"m wide (area {region.area:.3g} m²). Use a wider outline; for a long, narrow water keep its real size "
+            f"the region is too narrow for the buoys' {side:g} m start patch: the widest circle of open water in it "
+            f"is {width:.3g} simulation m across (area {region.area:.3g} m²). Use a wider outline; for a long, "
+            "narrow water keep its real size "
             "with `cover --radius-m`, or set a smaller world.start_patch")
     corner = shapely.Point(minx, miny) if at == "lower_left" else shapely.Point(maxx, maxy)
     _, nearest = nearest_points(corner, inner)
@@ -81,11 +82,6 @@ def launch_patch(region: Polygon, point: tuple[float, float], side: float) -> Po
         raise RegionError("the launch point is not in the water; give a point in the lake")
     x, y = point
     return box(x - side / 2, y - side / 2, x + side / 2, y + side / 2).intersection(region)
-
-
-def _sides(rect: Polygon) -> tuple[float, float]:
-    x, y = np.asarray(rect.exterior.coords)[:3].T
-    return float(np.hypot(x[1] - x[0], y[1] - y[0])), float(np.hypot(x[2] - x[1], y[2] - y[1]))
 
 
 def check_options(n_envs: int, world: WorldConfig, reward, sw, cr, observation: str, union_credit: str) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
 import os
 import sys
@@ -114,7 +115,9 @@ def main(argv: list[str] | None = None) -> int:
             args.held = held
             return args.func(args)
     except (ConfigError, RegionError, CheckpointError, OSError, ValueError) as exc:
-        print(f"replicate: error: {exc}", file=sys.stderr)
+        full = isinstance(exc, OSError) and exc.errno == errno.ENOSPC
+        print(f"replicate: error: {exc}" + ("; free some space, or give --out on another disk" if full else ""),
+              file=sys.stderr)
         return 2
     except shapely.errors.GEOSException as exc:
         print(f"replicate: error: the region's geometry cannot be used ({exc}); check the outline file, or repair "

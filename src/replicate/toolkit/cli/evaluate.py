@@ -8,6 +8,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+import numpy as np
 from shapely import affinity
 
 from replicate.core import artifacts
@@ -15,10 +16,12 @@ from replicate.core.params import Params, load_params
 from replicate.core.schema import MAX_AGENTS, ConfigError
 from replicate.toolkit.cli.inputs import (
     claim_out_file,
+    number_pair,
     overrides,
     resolve_region,
     run_region,
 )
+from replicate.world.units import top_speed
 
 
 def add(sub, verb: dict, regions: str) -> None:
@@ -42,6 +45,12 @@ def add(sub, verb: dict, regions: str) -> None:
                    help="release in the corner patch (default) or scattered over the water")
     g.add_argument("--lose", type=int, default=0, help="buoys lost half-way (default 0)")
     g.add_argument("--current", default=None, help="a uniform drift U,V in simulation m/s (top speed 2)")
+    g.add_argument("--radius-m", type=float, default=None, help="a lake file kept at its size in metres, for buoys of "
+                   "this sensing radius (default: scaled to the paper's density, 1 m² per buoy)")
+    g.add_argument("--speed-ms", type=float, default=None, help="with --radius-m: the buoys' top speed, m/s "
+                   "(default 1.0); the output states the control period and the mission in seconds")
+    g.add_argument("--current-ms", default=None, metavar="EAST,NORTH",
+                   help="with --radius-m: a uniform drift in m/s (instead of --current)")
     g.add_argument("--geodesic", action="store_true", help="also geodesic Lloyd (cells and paths through the "
                    "water; the slowest comparison, left out by default)")
     e.set_defaults(func=run)
@@ -113,13 +122,12 @@ def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
         if math.hypot(*current) >= top:
             raise ConfigError(f"--current {args.current}: a drift of {math.hypot(*current):.3g} simulation m/s is at "
                               f"least a buoy's top speed ({top:.3g}); the buoys would be swept off, give a slower one")
-    region = resolve_region(args.region, params)
-    s = math.sqrt(n / params.world.n_agents)  # the paper's density for any fleet: 9 buoys on 9 m²
-    region = dataclasses.replace(region, polygon=affinity.scale(region.polygon, s, s, origin=(0, 0)),
-                                 scale=region.scale / s)
+    region, units, current = policy_world(args, params, n, current)
     out = claim_out_file(Path(args.out or f"my-runs/policy-{region.name}-n{n}.json"), args.force, held=args.held)
     result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current, not args.no_progress,
-                             geodesic=args.geodesic)
+                             geodesic=args.geodesic, beside=True)
+    si = units.describe(params.world, params.coverage)
+    result["si"] = {**si, "mission_s": units.steps_time_s(result["steps"])}
     artifacts.write_json(out, result)
     cov, rivals = result["coverage"], result["baselines"]
     lloyd = rivals[lloyd_name(rivals)]
@@ -130,5 +138,35 @@ def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes); "
           f"Lloyd {lloyd['coverage']['mean']:.3f} (gains {lloyd['gains']}), ratio {ratio('ratio_to_lloyd')}; "
           f"best layout {rivals['best_layout']['coverage']['mean']:.3f}, ratio {ratio('ratio_to_best')}; "
-          f"furthest outside the water {result['max_outside_m']:.3g} m; wrote {out}")
+          f"furthest outside the water {result['max_outside_m']:.3g} m; buoys of {si['radius_m']:.3g} m at "
+          f"{si['top_speed_ms']:g} m/s: {result['steps']} control periods of {si['control_period_s']:.3g} s, "
+          f"{result['si']['mission_s'] / 60:.1f} min; wrote {out}")
     return 0
+
+
+def policy_world(args: argparse.Namespace, params: Params, n: int, current):
+    """The lake, its units and the drift (simulation m/s) of ``evaluate --policy``: the paper's density for any
+    fleet (9 buoys on 9 m², the buoys of 1 m/s) or, with ``--radius-m``, the lake file in metres."""
+    from replicate.world.scenario import scaled_setup
+    from replicate.world.units import BOB_SPEED, Units
+
+    if args.radius_m is None:
+        if args.speed_ms is not None or args.current_ms is not None:
+            raise ConfigError("--speed-ms and --current-ms go with --radius-m (a lake kept in metres)")
+        region = resolve_region(args.region, params)
+        s = math.sqrt(n / params.world.n_agents)  # the paper's density for any fleet: 9 buoys on 9 m²
+        region = dataclasses.replace(region, polygon=affinity.scale(region.polygon, s, s, origin=(0, 0)),
+                                     scale=region.scale / s)
+        return region, Units.of(params.world, params.coverage, params.coverage.radius * region.scale), current
+    if not Path(args.region).is_file():
+        raise ConfigError(f"--radius-m keeps a lake file at its size in metres; --region {args.region} is not a file")
+    if current is not None:
+        raise ConfigError("with --radius-m give the drift in m/s: --current-ms EAST,NORTH")
+    region, _ = scaled_setup(Path(args.region), params, n, args.radius_m)
+    units = Units.of(params.world, params.coverage, args.radius_m, args.speed_ms or BOB_SPEED)
+    if args.current_ms is not None:
+        east_north = number_pair(args.current_ms, "--current-ms", "EAST,NORTH in m/s")
+        if math.hypot(*east_north) >= units.speed_ms(top_speed(params.world)):
+            raise ConfigError(f"--current-ms {args.current_ms}: at least the buoys' top speed; they would be swept off")
+        current = tuple(float(v) for v in units.sim_speed(np.asarray(east_north)))
+    return region, units, current

@@ -4,6 +4,7 @@ output it will write, claimed (checked writable and not a finished result unless
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import sys
@@ -58,6 +59,19 @@ def check_episodes(episodes: int | None, option: str = "--episodes") -> None:
     if episodes is not None and episodes > MAX_EPISODES:
         raise ConfigError(f"{option} {episodes}: more than {MAX_EPISODES:,} episodes (100 times the paper's 10,000, "
                           "days of one core at the paper's size); give fewer")
+
+
+def number_pair(text: str | None, option: str, what: str) -> tuple[float, float] | None:
+    """``"a,b"`` → (a, b), refused by ``option`` when not two finite numbers."""
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 2 or not all(math.isfinite(v) for v in values):
+        raise ConfigError(f"{option} expects two numbers {what}, got {text!r}")
+    return values
 
 
 def resume_command(run: Path) -> str:

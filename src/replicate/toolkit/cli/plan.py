@@ -10,7 +10,7 @@ from pathlib import Path
 
 from replicate.core.params import load_params
 from replicate.core.schema import MAX_AGENTS, ConfigError, check_seed
-from replicate.toolkit.cli.inputs import claim_run_folder, overrides
+from replicate.toolkit.cli.inputs import claim_run_folder, number_pair, overrides
 
 
 def add(sub, verb: dict, regions: str) -> None:
@@ -39,19 +39,6 @@ def add(sub, verb: dict, regions: str) -> None:
     p.set_defaults(func=run)
 
 
-def pair(text: str | None, option: str, what: str) -> tuple[float, float] | None:
-    """``"a,b"`` → (a, b), refused by ``option`` when not two finite numbers."""
-    if text is None:
-        return None
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != 2 or not all(math.isfinite(v) for v in values):
-        raise ConfigError(f"{option} expects two numbers {what}, got {text!r}")
-    return values
-
-
 def mission_of(args: argparse.Namespace):
     """The mission the options ask for, refused by name before anything is written."""
     from replicate.toolkit.plan import Mission
@@ -64,11 +51,11 @@ def mission_of(args: argparse.Namespace):
                           ("--shore-range-m", args.shore_range_m)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise ConfigError(f"{option} must be a positive number, got {value}")
-    launch = pair(args.launch, "--launch", "LON,LAT in degrees")
+    launch = number_pair(args.launch, "--launch", "LON,LAT in degrees")
     if launch is not None and not (-180 <= launch[0] <= 180 and -90 <= launch[1] <= 90):
         raise ConfigError(f"--launch {args.launch}: longitude must lie in [-180, 180] and latitude in [-90, 90] "
                           "degrees (LON,LAT, longitude first)")
-    current = pair(args.current_ms, "--current-ms", "EAST,NORTH in m/s")
+    current = number_pair(args.current_ms, "--current-ms", "EAST,NORTH in m/s")
     if current is not None and math.hypot(*current) >= args.speed_ms:
         raise ConfigError(f"--current-ms {args.current_ms}: a drift of {math.hypot(*current):.3g} m/s is at least "
                           f"the buoys' top speed ({args.speed_ms:g} m/s); they would be swept away")

@@ -84,6 +84,9 @@ def run(args: argparse.Namespace) -> int:
 
             shutil.rmtree(out, ignore_errors=True)
         raise
+    except BaseException as exc:
+        mark_stopped(out, exc)
+        raise
     wall = time.perf_counter() - t0
     print(
         f"trained {summary['config']}/{summary['method']} on {summary['region']} for {episodes} episodes "
@@ -94,6 +97,21 @@ def run(args: argparse.Namespace) -> int:
         print(f"kept the actors of episode {summary['selected_episode']} (validation coverage "
               f"{summary['selected_validation_coverage']:.3f}; the last ones are in actors_last.pt)")
     return 0
+
+
+def mark_stopped(out: Path, exc: BaseException) -> None:
+    """A run that stopped (Ctrl-C, a full disk, a crash) says so in its run.json instead of "running", as far as
+    the disk still lets it; ``--resume`` continues it from its last checkpoint."""
+    from replicate.core import artifacts
+    from replicate.core.artifacts import CheckpointError
+
+    try:
+        record = read_record(out / "run.json")
+        if record.get("status") == "running":
+            why = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
+            artifacts.write_json(out / "run.json", {**record, "status": "stopped", "stopped_by": why})
+    except (OSError, ConfigError, CheckpointError):
+        pass  # the disk is full, or the record was never written: the checkpoint is what --resume reads
 
 
 def interrupted_hint(out: Path, replaced: bool) -> str:
