@@ -42,7 +42,7 @@ def test_a_plan_on_each_real_lake_stays_in_the_water_below_top_speed(replicate, 
     assert period == pytest.approx(25 / 0.5 * 2 * np.sqrt(2) * 0.1)  # 14.14 s: the similarity transform's
     for (_, _), group in points.groupby(["method", "buoy"]):
         assert np.allclose(np.diff(group.sort_values("step").time_s), period)
-    assert len(points) == 2 * 9 * (summary["steps"] + 1)
+    assert len(points) == 3 * 9 * (summary["steps"] + 1)  # the policy, tuned and decentralised Lloyd
     for method, m in summary["methods"].items():
         assert 0 < m["seconds_to_90pct"] <= m["seconds_to_95pct"] <= summary["mission_s"]
         assert m["coverage"] <= summary["best_layout"]["coverage"] * (1 + 1e-6)  # the limit holds
@@ -64,7 +64,7 @@ def test_the_geojson_is_in_lon_lat_and_the_csv_has_both_coordinates(replicate, t
                           "--out", str(out))
     assert code == 0, err
     tracks = gpd.read_file(out / "tracks.geojson")
-    assert tracks.crs.to_epsg() == 4326 and len(tracks) == 2 * 5
+    assert tracks.crs.to_epsg() == 4326 and len(tracks) == 3 * 5
     lon, lat = tracks.geometry.get_coordinates().mean()
     assert abs(lon - launch[0]) < 0.1 and abs(lat - launch[1]) < 0.1
     table = pd.read_csv(out / "waypoints.csv")
@@ -76,6 +76,8 @@ def test_the_geojson_is_in_lon_lat_and_the_csv_has_both_coordinates(replicate, t
     assert np.hypot(first.x_utm - lx, first.y_utm - ly).max() <= 40 / 2 * np.sqrt(2) + 0.01  # the patch: side R
     summary = json.loads((out / "plan.json").read_text())
     assert summary["mission_s"] >= 600 and summary["mission_s"] - 600 < summary["control_period_s"]
+    assert summary["centre_lonlat"] == pytest.approx([60.879, 56.103], abs=0.01)  # where a user checks the lake is
+    assert "centred at 60.87" in replicate.out
     assert table.speed_ms.max() <= 0.8 + 1e-9
     from PIL import Image
 

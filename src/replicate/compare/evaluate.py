@@ -17,6 +17,7 @@ from tqdm.auto import tqdm
 
 from replicate.compare import baselines, metrics
 from replicate.compare.best_layout import best_coverage
+from replicate.compare.decentralised import decentralised_lloyd
 from replicate.compare.stats import mean_interval
 from replicate.core import artifacts
 from replicate.core.executor import Beside
@@ -201,14 +202,15 @@ def evaluate_baseline(name: str, params: Params, region: Region, config: str = "
     return out
 
 
-def general_baselines(params: Params, gains: dict | None, geodesic: bool = True,
-                      naive: bool = True) -> tuple[dict[str, baselines.Policy], str]:
+def general_baselines(params: Params, gains: dict | None, geodesic: bool = True, naive: bool = True,
+                      decentralised: bool = False) -> tuple[dict[str, baselines.Policy], str]:
     """The general policy's comparisons → ({name: policy}, how their gains were set). With ``gains`` (the study of
     ``tuning.general_baselines``, carried in the policy's metadata): ``naive_tuned``, ``lloyd_tuned`` and
     geodesic Lloyd with Lloyd's tuned gains, each tuned once on the policy's training worlds, never on the lake
     evaluated; without them, the paper's hand-set ``naive`` and ``lloyd`` and geodesic Lloyd with Lloyd's.
     ``geodesic`` False leaves geodesic Lloyd out (its paths through the water cost the most of the three),
-    ``naive`` False naive swarming."""
+    ``naive`` False naive swarming; ``decentralised`` True adds decentralised Lloyd with Lloyd's gains
+    (``compare.decentralised``: the buoys heard and the water sensed, on the geodesic raster)."""
     ev = params.evaluate
     if gains:
         naive_gains, lloyd = NaiveConfig(**gains["naive_tuned"]["gains"]), LloydConfig(
@@ -221,6 +223,8 @@ def general_baselines(params: Params, gains: dict | None, geodesic: bool = True,
         rivals = {names[0]: baselines.naive_swarming(naive_gains)} | rivals
     if geodesic:
         rivals["geodesic_lloyd"] = baselines.geodesic_lloyd(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)
+    if decentralised:
+        rivals["decentralised_lloyd"] = decentralised_lloyd(lloyd, ev.geodesic.spacing)
     return rivals, how
 
 
@@ -256,7 +260,7 @@ class Phases:
 def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
                     lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False,
                     seeds: dict[Hashable, str | Path] | None = None, geodesic: bool = True, naive: bool = True,
-                    best_layout: bool = True, beside: bool = False) -> dict:
+                    best_layout: bool = True, beside: bool = False, decentralised: bool = False) -> dict:
     """A general policy (``export.export_general``) on ``region`` with ``n_agents`` buoys, zero-shot: behind the
     wall, on its local sensors, ``evaluate.episodes`` episodes from the evaluation seed at ``start``, losing
     ``lose`` buoys half-way, in a uniform ``current`` (m/s). Beside it, under the same physics, starts and events,
@@ -266,8 +270,9 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     outside the water at any step of any episode. ``seeds`` ({label: policy file}, e.g. every trained seed of
     the general policy) are run on the same episodes, each under ``"seeds"`` with its ``coverage`` and
     ``max_outside_m``; the baselines run once for all. ``geodesic``, ``naive`` and ``best_layout`` False leave
-    that comparison out (its ratio is then None); Lloyd always runs. ``beside`` runs Lloyd's episodes in a second
-    process while this one runs the rest (a command's wall time on two cores; the same numbers)."""
+    that comparison out (its ratio is then None); Lloyd always runs; ``decentralised`` adds decentralised Lloyd.
+    ``beside`` runs Lloyd's episodes in a second process while this one runs the rest (a command's wall time on
+    two cores; the same numbers)."""
 
     module, meta = read_general_policy(policy_path)
     others = {label: read_general_policy(path) for label, path in (seeds or {}).items()}
@@ -289,7 +294,7 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
         return {"coverage": covered(live),
                 "max_outside_m": float(distance_outside(region.polygon, positions).max()) * region.scale}
 
-    rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic, naive)
+    rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic, naive, decentralised)
     lloyd_key = lloyd_name(rivals)
     aside = Beside(lambda: covered(episodes(rivals[lloyd_key], None)[1])) if beside else None
     with Phases(region.name, 1 + len(others) + len(rivals) + best_layout, progress) as phase:

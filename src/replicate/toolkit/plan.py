@@ -1,9 +1,10 @@
 """A deployment plan (``replicate plan``): a lake file, N buoys of a sensing radius in metres and a top speed in
-m/s → where each buoy goes and when, for the general policy and for tuned Lloyd side by side, with the best layout
-found offline as the limit; everything said in SI (``world.units``).
+m/s → where each buoy goes and when, for the general policy, tuned Lloyd (clairvoyant: every buoy, the whole lake)
+and decentralised Lloyd (what the policy sees: the buoys heard, the water sensed) side by side, with the best
+layout found offline as the limit; everything said in SI (``world.units``).
 
 The lake keeps its real size: one simulation metre is ``radius_m / R`` metres, and one simulation second is as
-many seconds as make the simulated top speed ``speed_ms`` (the transform is exact, ``world.units``). Both methods
+many seconds as make the simulated top speed ``speed_ms`` (the transform is exact, ``world.units``). All three
 start from the same positions, drawn in a square of side R·(start patch / R) around the launch point (default: the
 paper's corner patch) and fly for the mission's duration (default: the horizon T of the lake's size, as
 ``evaluate --policy``), each step one control period. Coverage is SPEC §8's exact fraction of the lake, at every
@@ -17,15 +18,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import shapely
+from pyproj import Transformer
 
 from replicate.compare.best_layout import best_layout
-from replicate.compare.evaluate import fleet_policy, general_baselines, lloyd_name, read_general_policy, rollout
+from replicate.compare.evaluate import fleet_policy, general_baselines, read_general_policy, rollout
 from replicate.core.params import Params
 from replicate.core.schema import ConfigError
 from replicate.core.sections import SensorsConfig
 from replicate.core.studies import StartsConfig
 from replicate.world.coverage import coverage_fraction
-from replicate.world.env import CoverageEnv, launch_patch
+from replicate.world.env import launch_patch, start_patch
 from replicate.world.regions import Region
 from replicate.world.scenario import MAX_HORIZON, general_evaluation_env, horizon, scaled_setup
 from replicate.world.units import BOB_SPEED, Units
@@ -95,12 +98,13 @@ def plan(path: Path, params: Params, mission: Mission, policy: Path) -> Plan:
     current = None if mission.current_ms is None else tuple(units.sim_speed(np.asarray(mission.current_ms)))
     patch = None if mission.launch is None else launch_patch(region.polygon, launch_point(region, mission, units),
                                                              params.world.start_patch)
-    rivals, _ = general_baselines(params, meta.get("baseline_gains"), geodesic=False, naive=False)
-    lloyd = lloyd_name(rivals)
+    rivals, _ = general_baselines(params, meta.get("baseline_gains"), geodesic=False, naive=False,
+                                  decentralised=True)
     tracks = (fly("general policy", fleet_policy(module), sensors, params, region, mission, steps, current, patch),
-              fly(lloyd, rivals[lloyd], None, params, region, mission, steps, current, patch))
+              *(fly(name, rival, sensors if name == "decentralised_lloyd" else None, params, region, mission, steps,
+                    current, patch) for name, rival in rivals.items()))
     best_xy, best = best_layout(region.polygon, mission.buoys, params.coverage.radius, params.coverage.edges)
-    patch = patch if patch is not None else env_patch(params, region, mission)
+    patch = patch if patch is not None else start_patch(region.polygon, params.world.start_patch)
     return Plan(region, units, mission, params, sensors, tracks, best_xy, best, patch)
 
 
@@ -126,31 +130,20 @@ def mission_steps(params: Params, region: Region, mission: Mission, units: Units
 
 def launch_point(region: Region, mission: Mission, units: Units) -> tuple[float, float]:
     """The launch point (lon, lat) in simulation metres, refused with its distance in metres when on land."""
-    import shapely
-    from pyproj import Transformer
-
     lon, lat = mission.launch
     x, y = Transformer.from_crs("EPSG:4326", region.utm_crs, always_xy=True).transform(lon, lat)
     point = ((x - region.offset[0]) / region.scale, (y - region.offset[1]) / region.scale)
-    off = region.polygon.distance(shapely.Point(point))
-    if off > 0 or not region.polygon.contains(shapely.Point(point)):
+    if not region.polygon.contains(shapely.Point(point)):
+        off = region.polygon.distance(shapely.Point(point))
         raise ConfigError(f"--launch {lon:g},{lat:g}: the point lies {units.length_m(off):.0f} m outside "
                           f"{region.name}'s water; give a point in the lake (lon,lat in degrees, WGS84)")
     return point
-
-
-def env_patch(params: Params, region: Region, mission: Mission):
-    """The corner patch the buoys start from without a launch point."""
-    from replicate.world.env import start_patch
-
-    return start_patch(region.polygon, params.world.start_patch)
 
 
 def fly(method: str, policy, sensors: SensorsConfig | None, params: Params, region: Region, mission: Mission,
         steps: int, current, patch) -> Track:
     """One episode of ``policy`` (reading ``sensors``; None: positions, a baseline) from the launch ``patch``
     (None: the corner patch) → its track, with the exact coverage of every step."""
-    env: CoverageEnv
     env, _ = general_evaluation_env(params, region, mission.buoys, 1, sensors, current)
     if patch is not None:
         env.patch = patch
@@ -165,6 +158,7 @@ def summary(p: Plan) -> dict:
     u, period = p.units, p.units.period_s
     out = {
         "lake": p.region.name, "utm_crs": p.region.utm_crs, "area_m2": p.region.area * p.region.scale**2,
+        "centre_lonlat": p.region.centre_lonlat(),
         "attribution": p.region.attribution, "buoys": p.mission.buoys,
         **u.describe(p.params.world, p.params.coverage, p.sensors),
         "launch_lonlat": list(p.mission.launch) if p.mission.launch else None,

@@ -13,6 +13,8 @@ from replicate.toolkit.plan import Plan, summary
 from replicate.toolkit.plots import AGENT_COLOURS, draw_polygon, draw_region, plt, save
 from replicate.world.geometry import coverage_polygons
 
+MARKERS = ("s", "^", "D")  # the rivals' end points: tuned Lloyd, decentralised Lloyd
+
 
 def scale_bar(ax, width_m: float) -> None:
     """A scale bar at the lower left of a map in metres: 1, 2 or 5 × 10^k m, about a fifth of ``width_m``."""
@@ -34,14 +36,16 @@ def plan_map(p: Plan, path) -> Path:
     s, region = summary(p), p.region
     fig, (ax, cx) = plt.subplots(1, 2, figsize=(13, 5.5), gridspec_kw={"width_ratios": [1.3, 1]})
     draw_region(ax, region.map_polygon())
-    policy, lloyd = p.tracks
+    policy, *rivals = p.tracks
     xy = region.to_map(policy.positions)
     for k in range(xy.shape[1]):
         ax.plot(xy[:, k, 0], xy[:, k, 1], color=AGENT_COLOURS[k % 10], linewidth=0.8, alpha=0.7)
     for k, c in enumerate(coverage_polygons(xy[-1], s["radius_m"], p.params.coverage.edges)):
         draw_polygon(ax, c, facecolor=AGENT_COLOURS[k % 10], alpha=0.35, edgecolor=AGENT_COLOURS[k % 10])
-    end, best = region.to_map(lloyd.positions[-1]), region.to_map(p.best_xy)
-    ax.plot(end[:, 0], end[:, 1], "s", mfc="none", mec="k", ms=5, label=f"{lloyd.method}: end")
+    for rival, marker in zip(rivals, MARKERS, strict=False):
+        end = region.to_map(rival.positions[-1])
+        ax.plot(end[:, 0], end[:, 1], marker, mfc="none", mec="k", ms=5, label=f"{rival.method}: end")
+    best = region.to_map(p.best_xy)
     ax.plot(best[:, 0], best[:, 1], "x", color="#b2182b", ms=6, label="best layout")
     ax.plot(xy[0, :, 0], xy[0, :, 1], "k+", ms=5, label="launch")
     ax.set_xlabel(f"easting (m, {region.utm_crs})")
@@ -75,8 +79,8 @@ def plan_animation(p: Plan, path, frames: int = 100, fps: int = 10, progress: bo
     from replicate.toolkit.animate import save_gif
 
     s, region = summary(p), p.region
-    policy, lloyd = p.tracks
-    xy, xy_lloyd = region.to_map(policy.positions), region.to_map(lloyd.positions)
+    policy, *rivals = p.tracks
+    xy, rival_xy = region.to_map(policy.positions), [region.to_map(r.positions) for r in rivals]
     minutes = np.arange(p.steps + 1) * s["control_period_s"] / 60
     shown = np.unique(np.linspace(0, p.steps, min(frames, p.steps + 1)).round().astype(int))
     fig, (ax, cx) = plt.subplots(1, 2, figsize=(11, 4.8), gridspec_kw={"width_ratios": [1.3, 1]})
@@ -94,7 +98,8 @@ def plan_animation(p: Plan, path, frames: int = 100, fps: int = 10, progress: bo
     ax.set_ylim(miny - pad, maxy + pad)
     scale_bar(ax, maxx - minx)
     (buoys,) = ax.plot([], [], "k.", ms=4, label="general policy")
-    (rivals,) = ax.plot([], [], "s", mfc="none", mec="0.3", ms=4, label=lloyd.method)
+    others = [ax.plot([], [], marker, mfc="none", mec="0.3", ms=4, label=r.method)[0]
+              for r, marker in zip(rivals, MARKERS, strict=False)]
     ax.legend(loc="upper right", fontsize=7)
     clock = ax.set_title("", fontsize=10)
     cx.axhline(p.best_coverage, color="#b2182b", linestyle="--", linewidth=1, label="best layout (limit)")
@@ -111,11 +116,12 @@ def plan_animation(p: Plan, path, frames: int = 100, fps: int = 10, progress: bo
         for disc, poly in zip(discs, coverage_polygons(xy[t], s["radius_m"], p.params.coverage.edges), strict=True):
             disc.set_xy(np.asarray(poly.exterior.coords))
         buoys.set_data(xy[t, :, 0], xy[t, :, 1])
-        rivals.set_data(xy_lloyd[t, :, 0], xy_lloyd[t, :, 1])
+        for dots, at in zip(others, rival_xy, strict=False):
+            dots.set_data(at[t, :, 0], at[t, :, 1])
         for curve, track in zip(curves, p.tracks, strict=True):
             curve.set_data(minutes[: t + 1], track.coverage[: t + 1])
-        clock.set_text(f"{region.name}: {minutes[t]:.1f} min, general policy {100 * policy.coverage[t]:.3g} %, "
-                       f"{lloyd.method} {100 * lloyd.coverage[t]:.3g} %")
+        clock.set_text(f"{region.name}: {minutes[t]:.1f} min, general policy {100 * policy.coverage[t]:.3g} %"
+                       + "".join(f", {r.method} {100 * r.coverage[t]:.3g} %" for r in rivals))
 
     try:
         return save_gif(FuncAnimation(fig, frame, frames=len(shown)), len(shown), Path(path), fps, progress)

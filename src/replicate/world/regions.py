@@ -52,6 +52,16 @@ class Region:
         """Simulation positions [..., 2] → the map's (UTM metres): ``offset + scale · xy``."""
         return np.asarray(self.offset) + self.scale * np.asarray(xy, dtype=float)
 
+    def centre_lonlat(self) -> tuple[float, float] | None:
+        """Where the lake lies, (lon, lat) of its centroid in WGS84 (None for a synthetic region): what a user
+        checks against the map (a file with latitude first lands elsewhere)."""
+        if self.utm_crs is None:
+            return None
+        from pyproj import Transformer
+
+        lon, lat = Transformer.from_crs(self.utm_crs, "EPSG:4326", always_xy=True).transform(*self.offset)
+        return round(float(lon), 6), round(float(lat), 6)
+
     def map_polygon(self) -> Polygon:
         """The water in UTM metres (the map's CRS, ``utm_crs``)."""
         return affinity.affine_transform(self.polygon, [self.scale, 0, 0, self.scale, *self.offset])
@@ -209,6 +219,24 @@ def read_outline(path: str | Path, layer: str | None = None):
 
 # Real areas a buoy swarm covers: smaller is a pond a buoy spans, larger is not a lake (a continent is ~1e13 m²)
 MIN_AREA_M2, MAX_AREA_M2 = 100.0, 1e11
+MAX_VERTICES = 2_000  # an outline's vertices: shore rays, wall steps and clippings scale with them (Mae Kuang: 1,712)
+
+
+def simplified_outline(utm: Polygon) -> tuple[Polygon, str]:
+    """An outline of more than ``MAX_VERTICES`` vertices simplified (Douglas-Peucker, islands kept) with the
+    smallest tolerance, doubling from 1e-4 of the lake's size, that brings it under them → (outline, a note saying
+    by how much, or "")."""
+    count = shapely.get_num_coordinates(utm)
+    if count <= MAX_VERTICES:
+        return utm, ""
+    tolerance = 1e-4 * math.sqrt(utm.area)
+    simple = utm
+    while shapely.get_num_coordinates(simple) > MAX_VERTICES:
+        simple = check_polygon(shapely.simplify(utm, tolerance, preserve_topology=True), "the simplified outline")
+        tolerance *= 2
+    change = abs(simple.area - utm.area) / utm.area
+    return simple, (f"the outline's {count:,} vertices were simplified to {shapely.get_num_coordinates(simple):,}, "
+                    f"no point moved more than {tolerance / 2:.3g} m (area changed by {change:.3%})")
 
 
 def estimate_utm(frame, what) -> object:
@@ -246,6 +274,10 @@ def region_from_geometry(
     if not MIN_AREA_M2 <= utm_poly.area <= MAX_AREA_M2:
         raise RegionError(f"{name}: its area is {utm_poly.area:.4g} m², outside the {MIN_AREA_M2:g}-{MAX_AREA_M2:g} m² "
                           "of a waterbody a buoy swarm covers; check the outline and its CRS")
+    utm_poly, simplified = simplified_outline(utm_poly)
+    if simplified:
+        notes.append(simplified)
+        warnings.warn(simplified, stacklevel=2)
     sim, scale, offset = normalise(utm_poly, area)
     if area is not None:
         notes.append(f"scaled to {area:g} m²: 1 simulation metre = {scale:.1f} m ({utm_crs.to_string()})")

@@ -45,6 +45,8 @@ def add(sub, verb: dict, regions: str) -> None:
                    help="release in the corner patch (default) or scattered over the water")
     g.add_argument("--lose", type=int, default=0, help="buoys lost half-way (default 0)")
     g.add_argument("--current", default=None, help="a uniform drift U,V in simulation m/s (top speed 2)")
+    g.add_argument("--decentralised", action="store_true", help="also decentralised Lloyd: each buoy's cell among "
+                   "the buoys it hears, clipped to the water it has sensed (what the policy sees)")
     g.add_argument("--radius-m", type=float, default=None, help="a lake file kept at its size in metres, for buoys of "
                    "this sensing radius (default: scaled to the paper's density, 1 m² per buoy)")
     g.add_argument("--speed-ms", type=float, default=None, help="with --radius-m: the buoys' top speed, m/s "
@@ -65,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
         return evaluate_policy_file(args, params)
     given = [flag for flag, value, default in (("--n-agents", args.n_agents, None), ("--starts", args.starts, "corner"),
                                                ("--lose", args.lose, 0), ("--current", args.current, None),
-                                               ("--geodesic", args.geodesic, False))
+                                               ("--geodesic", args.geodesic, False),
+                                               ("--decentralised", args.decentralised, False))
              if value != default]
     if given:
         raise ConfigError(f"{', '.join(given)}: options of a general policy; give --policy FILE with them")
@@ -125,7 +128,7 @@ def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
     region, units, current = policy_world(args, params, n, current)
     out = claim_out_file(Path(args.out or f"my-runs/policy-{region.name}-n{n}.json"), args.force, held=args.held)
     result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current, not args.no_progress,
-                             geodesic=args.geodesic, beside=True)
+                             geodesic=args.geodesic, beside=True, decentralised=args.decentralised)
     si = units.describe(params.world, params.coverage)
     result["si"] = {**si, "mission_s": units.steps_time_s(result["steps"])}
     artifacts.write_json(out, result)
@@ -138,6 +141,8 @@ def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes); "
           f"Lloyd {lloyd['coverage']['mean']:.3f} (gains {lloyd['gains']}), ratio {ratio('ratio_to_lloyd')}; "
           f"best layout {rivals['best_layout']['coverage']['mean']:.3f}, ratio {ratio('ratio_to_best')}; "
+          + (f"decentralised Lloyd {rivals['decentralised_lloyd']['coverage']['mean']:.3f}; "
+             if "decentralised_lloyd" in rivals else "") +
           f"furthest outside the water {result['max_outside_m']:.3g} m; buoys of {si['radius_m']:.3g} m at "
           f"{si['top_speed_ms']:g} m/s: {result['steps']} control periods of {si['control_period_s']:.3g} s, "
           f"{result['si']['mission_s'] / 60:.1f} min; wrote {out}")

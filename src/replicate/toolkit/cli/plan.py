@@ -1,6 +1,6 @@
 """``replicate plan``: a deployment plan for a lake file, N buoys of a sensing radius in metres and a top speed in
-m/s: where each buoy ends up and when coverage reaches 90 % / 95 %, for the general policy and tuned Lloyd side by
-side, with the best layout as the limit; GIS files of the lake, tracks and layouts."""
+m/s: where each buoy ends up and when coverage reaches 90 % / 95 %, for the general policy, tuned Lloyd and
+decentralised Lloyd side by side, with the best layout as the limit; GIS files of the lake, tracks and layouts."""
 
 from __future__ import annotations
 
@@ -99,7 +99,9 @@ def run(args: argparse.Namespace) -> int:
 def print_plan(s: dict, written: list[Path]) -> None:
     """The plan as a field team reads it."""
     km2 = s["area_m2"] / 1e6
-    print(f"{s['lake']}: {s['buoys']} buoys of {s['radius_m']:g} m radius at {s['top_speed_ms']:g} m/s on "
+    lon, lat = s["centre_lonlat"]
+    print(f"{s['lake']} (centred at {abs(lon):.4f}°{'E' if lon >= 0 else 'W'} {abs(lat):.4f}°{'N' if lat >= 0 else 'S'}"
+          f"): {s['buoys']} buoys of {s['radius_m']:g} m radius at {s['top_speed_ms']:g} m/s on "
           f"{km2:.3g} km² ({s['utm_crs']}); a control period of {s['control_period_s']:.3g} s, a mission of "
           f"{s['mission_s'] / 60:.1f} min")
     best = s["best_layout"]["coverage"]
