@@ -102,6 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = parsed(argv)
         warnings.simplefilter("default")
+        warnings.formatwarning = lambda message, category, *_, **__: f"replicate: note: {message}\n"  # not a traceback
         logging.basicConfig(level=logging.WARNING, format="replicate: %(message)s", stream=sys.stderr)  # diagnostics:
         logging.getLogger("replicate").setLevel(logging.INFO)  # the package's notes, other libraries' warnings
         if args.command in ("train", "cover", "tune"):
