@@ -19,6 +19,7 @@ from replicate.world import rewards, sensors
 from replicate.world.geometry import CoverageGeometry, coverage_fraction_exact
 from replicate.world.regions import Region, RegionError, signed_distance
 from replicate.world.shore import shoreline, wall_step
+from replicate.world.units import top_speed
 
 OBSERVATIONS = ("position", "position_velocity", "local")  # local: no absolute position (``sensors``)
 
@@ -269,7 +270,7 @@ class CoverageEnv:
         if w.damping <= 0:
             return float(np.hypot(maxx - minx, maxy - miny))
         drift = 0.0 if self.current is None else self.current.max_speed()
-        return 1.01 * (np.sqrt(2.0) * w.sensitivity / w.mass * w.dt / w.damping + drift) * w.dt
+        return 1.01 * (top_speed(w) + drift) * w.dt
 
     def set_current(self, current) -> None:
         """Let the water move (``currents.Current`` of these E environments; None: still water). Behind the wall,

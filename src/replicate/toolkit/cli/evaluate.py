@@ -120,8 +120,7 @@ def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
             current = ()
         if len(current) != 2 or not all(math.isfinite(v) for v in current):
             raise ConfigError(f"--current expects two numbers U,V (simulation m/s), got {args.current!r}")
-        w = params.world
-        top = math.sqrt(2) * w.sensitivity / w.mass * w.dt / w.damping  # a buoy's top speed over the water
+        top = top_speed(params.world)  # a buoy's top speed over the water
         if math.hypot(*current) >= top:
             raise ConfigError(f"--current {args.current}: a drift of {math.hypot(*current):.3g} simulation m/s is at "
                               f"least a buoy's top speed ({top:.3g}); the buoys would be swept off, give a slower one")
