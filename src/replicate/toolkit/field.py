@@ -36,8 +36,7 @@ def waypoint_table(p: Plan):
     period, u = p.units.period_s, p.units
     for track in p.tracks:
         xy = p.region.to_map(track.positions)  # [T + 1, N, 2] UTM metres
-        step = np.linalg.norm(np.diff(track.positions, axis=0), axis=-1) / p.params.world.dt
-        speed = np.vstack([np.zeros((1, xy.shape[1])), u.speed_ms(step)])
+        speed = np.vstack([np.zeros((1, xy.shape[1])), u.speed_ms(track.speeds(p.params.world.dt))])
         for buoy in range(xy.shape[1]):
             for t in range(xy.shape[0]):
                 rows.append((track.method, f"buoy_{buoy}", t, t * period, float(speed[t, buoy]), *xy[t, buoy]))
@@ -61,7 +60,7 @@ def layers(p: Plan) -> dict:
     for track in p.tracks:
         xy = p.region.to_map(track.positions)
         for buoy in range(xy.shape[1]):
-            path = LineString(xy[:, buoy]) if len(xy) > 1 else Point(xy[0, buoy]).buffer(1e-6).exterior
+            path = LineString(xy[:, buoy])  # a mission lasts at least one control period: two points
             top = waypoints[(waypoints.method == track.method) & (waypoints.buoy == f"buoy_{buoy}")].speed_ms.max()
             lines.append((track.method, f"buoy_{buoy}", path.length, float(top), path))
             ends.append((track.method, f"buoy_{buoy}", float(track.coverage[-1]), Point(xy[-1, buoy])))

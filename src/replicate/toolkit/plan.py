@@ -63,6 +63,10 @@ class Track:
     positions: np.ndarray
     coverage: np.ndarray
 
+    def speeds(self, dt: float) -> np.ndarray:
+        """Each buoy's ground speed over each step, simulation m/s → [T, N]."""
+        return np.linalg.norm(np.diff(self.positions, axis=0), axis=-1) / dt
+
     def time_to(self, share: float, period_s: float) -> float:
         """Seconds until coverage first reaches ``share`` of its final value."""
         return float(np.argmax(self.coverage >= share * self.coverage[-1]) * period_s)
@@ -168,7 +172,7 @@ def summary(p: Plan) -> dict:
         "methods": {},
     }
     for t in p.tracks:
-        speed = np.linalg.norm(np.diff(t.positions, axis=0), axis=-1) / p.params.world.dt
+        speed = t.speeds(p.params.world.dt)
         out["methods"][t.method] = {
             "coverage": float(t.coverage[-1]),
             **{f"seconds_to_{round(100 * q)}pct": t.time_to(q, period) for q in MILESTONES},
