@@ -16,6 +16,8 @@ from replicate.learn.replay import FleetNStep, FleetReplay
 from replicate.learn.shared_maddpg import SharedActor
 from replicate.world.sensors import ON_SHORE, on_shore, shore_rays
 
+from ..toolkit.gis import check_field_files
+
 
 def tiny(params):
     """Two worlds (the square with 6 buoys and one small generated lake), 8 environments, 48 episodes."""
@@ -194,7 +196,9 @@ def test_cover_uses_the_general_policy_zero_shot_and_fine_tuned(two_runs, tmp_pa
     assert summary["n_agents"] == 6 and summary["finetune_episodes"] == 0 and summary["max_outside_m"] == 0.0
     assert set(summary["baselines"]) == {"naive", "lloyd", "best_layout"}
     assert summary["coverage"]["mean"] <= summary["baselines"]["best_layout"]["coverage"]["mean"] + 0.01
-    assert (tmp_path / "zero" / "spread.png").exists()
+    layers, episode = check_field_files(tmp_path / "zero", "episode")
+    assert set(layers["tracks"].method) == {"general policy", "lloyd", "decentralised_lloyd"}
+    assert len(layers["waypoints"]) == 3 * 6 * (summary["episode_length"] + 1)
     tuned = cli(*small, "cover", "--region", str(tmp_path / "lake.geojson"), "--policy", str(tmp_path / "general.pt"),
                 "--n-agents", "6", "--finetune", "8", "--out", str(tmp_path / "tuned"), "--no-progress")
     assert tuned.wait(timeout=600) == 0

@@ -8,17 +8,9 @@ import numpy as np
 import pytest
 
 from ..conftest import ROOT
+from .gis import check_field_files
 
 LAKES = ROOT / "data" / "lakes"
-
-
-def opened(out):
-    """Every layer of the plan's GeoPackage, read back with geopandas (pyogrio)."""
-    import geopandas as gpd
-    import pyogrio
-
-    return {name: gpd.read_file(out / "plan.gpkg", layer=name, engine="pyogrio")
-            for name, _ in pyogrio.list_layers(out / "plan.gpkg")}
 
 
 @pytest.mark.parametrize("lake", ["lake_karaguz", "mae_kuang_reservoir", "lake_silach"])
@@ -30,12 +22,9 @@ def test_a_plan_on_each_real_lake_stays_in_the_water_below_top_speed(replicate, 
     code, err = replicate("plan", "--region", str(LAKES / f"{lake}.geojson"), "--buoys", "9", "--radius-m", "25",
                           "--speed-ms", "1.0", "--out", str(out))
     assert code == 0, err
-    layers = opened(out)
-    assert set(layers) == {"lake", "waypoints", "tracks", "layout", "coverage"}
-    water, points = layers["lake"].geometry.iloc[0], layers["waypoints"]
-    assert layers["lake"].crs.to_epsg() in (32641, 32647) and points.crs == layers["lake"].crs
-    assert water.buffer(1e-6).contains(points.geometry).all()
-    summary = json.loads((out / "plan.json").read_text())
+    layers, summary = check_field_files(out, "plan")
+    points = layers["waypoints"]
+    assert layers["lake"].crs.to_epsg() in (32641, 32647)
     assert points.speed_ms.max() <= 1.0 + 1e-9 and summary["top_speed_ms"] == pytest.approx(1.0)
     assert points.speed_ms.max() > 0.5  # and they moved
     period = summary["control_period_s"]
@@ -116,6 +105,10 @@ def test_evaluate_keeps_a_lake_in_metres_and_states_its_units(replicate, tmp_pat
     assert si["control_period_s"] == pytest.approx(300 / 0.5 * 2 * np.sqrt(2) / 0.5 * 0.1)
     assert si["mission_s"] == pytest.approx(result["steps"] * si["control_period_s"])
     assert result["current"][0] == pytest.approx(0.1 / 0.5 * 2 * np.sqrt(2))  # 20 % of top speed
+    layers, episode = check_field_files(tmp_path / "e-episode", "episode", animation=False)  # its first episode
+    assert episode["steps"] == result["steps"] and episode["current_ms"] == pytest.approx([0.1, 0.0])
+    assert episode["top_speed_ms"] == pytest.approx(0.5) and len(layers["layout"]) == 12 * 3
+    assert result["field_files"][0] == str(tmp_path / "e-episode" / "episode.gpkg")
     code, err = replicate("evaluate", "--policy", "src/replicate/defaults/general.pt", "--region", "square",
                           "--radius-m", "300", "--out", str(tmp_path / "f.json"))
     assert code == 2 and "not a file" in err

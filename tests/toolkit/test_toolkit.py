@@ -24,6 +24,7 @@ from replicate.world.coverage import coverage_ceiling
 
 from ..command import SMALL, cli, small_trainer
 from ..conftest import ROOT
+from .gis import check_field_files
 
 
 @pytest.fixture(scope="module")
@@ -130,6 +131,30 @@ def test_animation_has_one_frame_per_step(small_run, regions, tmp_path):
     assert not list(tmp_path.glob(".*.gif"))
 
 
+def test_animate_speaks_metres_and_minutes(small_run, regions, tmp_path, monkeypatch):
+    """With the buoys' top speed (`animate --speed-ms`), Bedok's episode is drawn on its UTM map in metres and the
+    title's clock is in minutes of that speed (the control period of ``world.units``): read from the last frame."""
+    from replicate.toolkit import animate
+    from replicate.world.units import Units
+
+    seen = {}
+
+    def last_frame(anim, frames, out, fps, progress):
+        anim._draw_was_started = True  # read, not rendered
+        anim._func(frames - 1)
+        ax = anim._fig.axes[0]
+        seen.update(title=ax.get_title(), x=ax.get_xlabel(), xlim=ax.get_xlim())
+        return out
+
+    monkeypatch.setattr(animate, "save_gif", last_frame)
+    short = dataclasses.replace(small_params(), world=dataclasses.replace(small_params().world, episode_length=12))
+    bedok = regions["bedok"]
+    animate_run(small_run, short, bedok, tmp_path / "episode.gif", speed_ms=0.5)
+    period = Units.of(short.world, short.coverage, 0.5 * bedok.scale, 0.5).period_s
+    assert seen["x"] == f"easting (m, {bedok.utm_crs})" and seen["xlim"][0] > 1e5  # UTM eastings
+    assert f"{12 * period / 60:.1f} min, coverage" in seen["title"] and "step" not in seen["title"]
+
+
 @pytest.mark.slow
 def test_cover_a_lake_the_repo_does_not_ship(tmp_path):
     """`replicate cover --method cr --region FILE` (CR-MARL trained on the lake) offline end to end, at real scale
@@ -150,7 +175,10 @@ def test_cover_a_lake_the_repo_does_not_ship(tmp_path):
     assert 0.15 < ceiling < 0.3  # 5 × 0.07 km² on a lake of about 1.5 km²
     assert 0.0 <= summary["coverage"]["mean"] <= ceiling + 1e-9
     assert 0.8 * ceiling < summary["lloyd_coverage"]["mean"] <= ceiling + 1e-9
-    assert (tmp_path / "out" / "spread.png").exists()
+    layers, episode = check_field_files(tmp_path / "out", "episode", 1e-3, walled=False)  # to 1e-4 sim m
+    assert set(layers["tracks"].method) == {"CR-MARL (tuned)", "lloyd"}
+    assert episode["steps"] == summary["episode_length"]  # Lloyd's converging run cut to the policy's minutes
+    assert episode["methods"]["lloyd"]["coverage"] <= episode["best_layout"]["coverage"] + 1e-9
     (tmp_path / "lake.geojson").unlink()  # the run folder records its region: export needs nothing else
     export = cli("export", str(tmp_path / "out" / "run"), "--out", str(tmp_path / "lake.pt"), stderr=subprocess.PIPE,
                  text=True)

@@ -119,11 +119,17 @@ def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spaci
 
 
 @functools.lru_cache(maxsize=64)
-def _best_coverage(region_wkb: bytes, n_agents: int, radius: float, edges: int) -> float:
-    return best_layout(shapely.from_wkb(region_wkb), n_agents, radius, edges)[1]
+def _best_layout(region_wkb: bytes, n_agents: int, radius: float, edges: int) -> tuple[np.ndarray, float]:
+    return best_layout(shapely.from_wkb(region_wkb), n_agents, radius, edges)
+
+
+def best_layout_once(region: Polygon, n_agents: int, radius: float, edges: int) -> tuple[np.ndarray, float]:
+    """``best_layout`` at the default grid, computed once per region and fleet in a process (an evaluation asks
+    for it under every start and event, and its episode's map again) → (a copy of the positions, coverage)."""
+    xy, cov = _best_layout(region.wkb, n_agents, radius, edges)
+    return xy.copy(), cov
 
 
 def best_coverage(region: Polygon, n_agents: int, radius: float, edges: int) -> float:
-    """The best layout's coverage fraction, computed once per region and fleet in a process (an evaluation asks
-    for it under every start and event)."""
-    return _best_coverage(region.wkb, n_agents, radius, edges)
+    """The best layout's coverage fraction (``best_layout_once``)."""
+    return best_layout_once(region, n_agents, radius, edges)[1]

@@ -29,7 +29,6 @@ from replicate.compare.evaluate import (
     evaluate_baseline,
     evaluate_policy,
     evaluate_run,
-    general_episode,
     lloyd_name,
     read_general_policy,
 )
@@ -39,9 +38,9 @@ from replicate.core.schema import ConfigError
 from replicate.core.sections import SensorsConfig
 from replicate.learn.general_train import GeneralTrainer
 from replicate.learn.train import train
-from replicate.toolkit import plots
 from replicate.toolkit.export import export_general
-from replicate.world.env import start_patch
+from replicate.toolkit.field import write_mission
+from replicate.toolkit.plan import Mission, plan_of, plan_on
 from replicate.world.osm import OSMUnavailable, outline_from_osm_xml, query_osm
 from replicate.world.regions import RegionError, write_run_region
 from replicate.world.scenario import horizon, scaled_setup
@@ -83,13 +82,9 @@ def cover(
     train(rc, region, episodes, seed, out / "run", params.train.checkpoint_every, resume=False, progress=progress)
     method = evaluate_run(out / "run", params, region, progress=progress)
     lloyd = evaluate_baseline("lloyd_converged", params, region, config, progress=progress)
-    c = params.coverage
-    xy = method["example"]["final_positions"]
-    patch = start_patch(region.polygon, params.world.start_patch)
-    plots.spread(region.polygon, patch, np.array(xy), c.radius, c.edges, out / "spread.png",
-                 f"CR-MARL ({config}) on {region.name}: final positions of an evaluation episode",
-                 np.array(method["example"]["trajectory"]),
-                 f"coverage {method['coverage']['mean']:.2f}, Lloyd {lloyd['coverage']['mean']:.2f}")
+    p = plan_of(region, params, {f"CR-MARL ({config})": np.array(method["example"]["trajectory"]),
+                                 "lloyd": np.array(lloyd["example"]["trajectory"])})  # over the same minutes
+    write_mission(p, out, "episode", progress)
     summary = {
         **deployment(region, params, params.world.n_agents, params.world.episode_length),
         "episodes": episodes,
@@ -153,14 +148,10 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
         trained = finetuned(policy, module, meta, params, region, steps, finetune, seed, out, progress)
         policy = out / "policy.pt"
     result = evaluate_policy(policy, region, params, n, "corner", progress=progress, geodesic=False)
-    c = params.coverage
-    trace, _ = general_episode(policy, region, params, n, "corner")
+    mission = Mission(n, params.coverage.radius * region.scale, seed=params.evaluate.seed)
+    write_mission(plan_on(region, params, mission, policy), out, "episode", progress)
     lloyd = lloyd_name(result["baselines"])
     lloyd_coverage = result["baselines"][lloyd]["coverage"]
-    plots.spread(region.polygon, start_patch(region.polygon, params.world.start_patch), trace[-1], c.radius,
-                 c.edges, out / "spread.png", f"general policy{' fine-tuned' if finetune else ''} on {region.name}: "
-                 "an evaluation episode", trace,
-                 f"coverage {result['coverage']['mean']:.2f}, Lloyd {lloyd_coverage['mean']:.2f}")
     summary = {
         **deployment(region, params, n, steps),
         "policy": str(policy),

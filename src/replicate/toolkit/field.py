@@ -1,5 +1,6 @@
-"""What a field team loads: a plan's lake, tracks and layouts as a GeoPackage (in the lake's UTM zone), GeoJSON (in
-lon/lat, WGS84), a CSV of every buoy's waypoints, and its summary as JSON; all in metres, seconds and degrees.
+"""What a field team loads: a plan's lake, tracks and layouts (or those of one episode of ``cover`` and ``evaluate
+--policy``) as a GeoPackage (in the lake's UTM zone), GeoJSON (in lon/lat, WGS84), a CSV of every buoy's waypoints,
+and its summary as JSON; all in metres, seconds and degrees; beside them the map (PNG) and the animation (GIF).
 
 ``plan.gpkg`` layers (CRS: the lake's UTM zone):
 
@@ -77,11 +78,12 @@ def layers(p: Plan) -> dict:
     }
 
 
-def write_field_outputs(p: Plan, out: Path) -> list[Path]:
-    """Write the plan's files into ``out`` (each atomically, mode 0644) → their paths."""
+def write_field_outputs(p: Plan, out: Path, stem: str = "plan") -> list[Path]:
+    """Write the plan's files into ``out`` (each atomically, mode 0644): ``{stem}.gpkg``, ``tracks.geojson``,
+    ``layout.geojson``, ``waypoints.csv`` and ``{stem}.json`` → their paths."""
     frames = layers(p)
-    written = [out / "plan.gpkg", out / "tracks.geojson", out / "layout.geojson", out / "waypoints.csv",
-               out / "plan.json"]
+    written = [out / f"{stem}.gpkg", out / "tracks.geojson", out / "layout.geojson", out / "waypoints.csv",
+               out / f"{stem}.json"]
     with artifacts.atomic_path(written[0]) as tmp:
         for name, frame in frames.items():
             frame.to_file(tmp, layer=name, driver="GPKG", engine="pyogrio")
@@ -93,4 +95,17 @@ def write_field_outputs(p: Plan, out: Path) -> list[Path]:
                          for m, b, s, t, lon, lat, x, y, v in zip(w.method, w.buoy, w.step, w.time_s, w.lon, w.lat,
                                                                   w.x_utm, w.y_utm, w.speed_ms, strict=True)))
     artifacts.write_json(written[4], summary(p))
+    return written
+
+
+def write_mission(p: Plan, out: Path, stem: str = "plan", progress: bool = False, animation: bool = True
+                  ) -> list[Path]:
+    """Everything a mission leaves for the field: ``write_field_outputs``, the map ``{stem}.png`` (UTM metres,
+    scale bar, attribution) and (``animation``) the animated ``{stem}.gif`` → their paths."""
+    from replicate.toolkit.plan_map import plan_animation, plan_map
+
+    written = write_field_outputs(p, out, stem)
+    written.append(plan_map(p, out / f"{stem}.png"))
+    if animation:
+        written.append(plan_animation(p, out / f"{stem}.gif", progress=progress))
     return written

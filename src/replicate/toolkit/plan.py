@@ -21,7 +21,7 @@ import numpy as np
 import shapely
 from pyproj import Transformer
 
-from replicate.compare.best_layout import best_layout
+from replicate.compare.best_layout import best_layout_once
 from replicate.compare.evaluate import fleet_policy, general_baselines, read_general_policy, rollout
 from replicate.core.params import Params
 from replicate.core.schema import ConfigError
@@ -33,6 +33,7 @@ from replicate.world.regions import Region
 from replicate.world.scenario import MAX_HORIZON, general_evaluation_env, horizon, scaled_setup
 from replicate.world.units import BOB_SPEED, Units
 
+CORNER = StartsConfig(start="corner")  # the paper's start: every buoy in the corner patch
 MILESTONES = (0.9, 0.95)  # shares of a method's final coverage whose time the plan reports
 
 
@@ -81,7 +82,7 @@ class Plan:
     units: Units
     mission: Mission
     params: Params
-    sensors: SensorsConfig
+    sensors: SensorsConfig | None
     tracks: tuple[Track, ...]
     best_xy: np.ndarray
     best_coverage: float
@@ -95,6 +96,15 @@ class Plan:
 def plan(path: Path, params: Params, mission: Mission, policy: Path) -> Plan:
     """Plan ``mission`` on the lake in ``path`` with the general policy in ``policy`` (module docstring)."""
     region, params = scaled_setup(path, params, mission.buoys, mission.radius_m)
+    return plan_on(region, params, mission, policy)
+
+
+def plan_on(region: Region, params: Params, mission: Mission, policy: Path, starts: StartsConfig = CORNER,
+            decentralised: bool = True) -> Plan:
+    """Fly ``mission`` on ``region`` (simulation metres at the mission's scale): the general policy, tuned Lloyd
+    and (``decentralised``) decentralised Lloyd from the same ``starts`` (drawn with ``mission.seed``; buoys lost
+    as ``starts.lose`` says), and the best layout as the limit. ``cover`` and ``evaluate --policy`` write one
+    episode of their own this way."""
     units = Units.of(params.world, params.coverage, mission.radius_m, mission.speed_ms)
     module, meta = read_general_policy(policy)
     sensors = mission_sensors(SensorsConfig(**meta["sensor_config"]), mission, units)
@@ -103,13 +113,31 @@ def plan(path: Path, params: Params, mission: Mission, policy: Path) -> Plan:
     patch = None if mission.launch is None else launch_patch(region.polygon, launch_point(region, mission, units),
                                                              params.world.start_patch)
     rivals, _ = general_baselines(params, meta.get("baseline_gains"), geodesic=False, naive=False,
-                                  decentralised=True)
-    tracks = (fly("general policy", fleet_policy(module), sensors, params, region, mission, steps, current, patch),
-              *(fly(name, rival, sensors if name == "decentralised_lloyd" else None, params, region, mission, steps,
-                    current, patch) for name, rival in rivals.items()))
-    best_xy, best = best_layout(region.polygon, mission.buoys, params.coverage.radius, params.coverage.edges)
+                                  decentralised=decentralised)
+    flight = Flight(params, region, mission, steps, current, patch, starts)
+    tracks = (flight.fly("general policy", fleet_policy(module), sensors),
+              *(flight.fly(name, rival, sensors if name == "decentralised_lloyd" else None)
+                for name, rival in rivals.items()))
+    best_xy, best = best_layout_once(region.polygon, mission.buoys - starts.lose, params.coverage.radius,
+                                params.coverage.edges)
     patch = patch if patch is not None else start_patch(region.polygon, params.world.start_patch)
     return Plan(region, units, mission, params, sensors, tracks, best_xy, best, patch)
+
+
+def plan_of(region: Region, params: Params, traces: dict[str, np.ndarray], speed_ms: float = BOB_SPEED) -> Plan:
+    """Episodes already flown from the corner patch ({method: positions [T + 1, N, 2]}, e.g. a per-region policy's
+    and Lloyd's first evaluation episode) as a plan of buoys of top speed ``speed_ms``, with the best layout; an
+    episode longer than the shortest is cut to it (one clock for all: Lloyd run to convergence shows the same
+    minutes as the policy)."""
+    c = params.coverage
+    steps = min(len(xy) for xy in traces.values())
+    n = next(iter(traces.values())).shape[1]
+    mission = Mission(n, c.radius * region.scale, speed_ms)
+    tracks = tuple(Track(method, xy[:steps], coverage_fraction(region.polygon, xy[:steps], c.radius, c.edges))
+                   for method, xy in traces.items())
+    best_xy, best = best_layout_once(region.polygon, n, c.radius, c.edges)
+    return Plan(region, Units.of(params.world, c, mission.radius_m, speed_ms), mission, params, None, tracks,
+                best_xy, best, start_patch(region.polygon, params.world.start_patch))
 
 
 def mission_sensors(sensors: SensorsConfig, mission: Mission, units: Units) -> SensorsConfig:
@@ -144,16 +172,34 @@ def launch_point(region: Region, mission: Mission, units: Units) -> tuple[float,
     return point
 
 
-def fly(method: str, policy, sensors: SensorsConfig | None, params: Params, region: Region, mission: Mission,
-        steps: int, current, patch) -> Track:
-    """One episode of ``policy`` (reading ``sensors``; None: positions, a baseline) from the launch ``patch``
-    (None: the corner patch) → its track, with the exact coverage of every step."""
-    env, _ = general_evaluation_env(params, region, mission.buoys, 1, sensors, current)
-    if patch is not None:
-        env.patch = patch
-    positions = rollout(env, policy, steps, mission.seed, StartsConfig(start="corner"))["positions"][:, 0]
-    cover = coverage_fraction(region.polygon, positions, params.coverage.radius, params.coverage.edges)
-    return Track(method, positions, cover)
+@dataclass(frozen=True)
+class Flight:
+    """What every method of a plan flies in: the lake, the mission, its control periods, the drift (simulation
+    m/s), the launch ``patch`` (None: the corner patch) and the ``starts`` (corner or scattered; buoys lost)."""
+
+    params: Params
+    region: Region
+    mission: Mission
+    steps: int
+    current: tuple[float, float] | None
+    patch: object
+    starts: StartsConfig
+
+    def fly(self, method: str, policy, sensors: SensorsConfig | None) -> Track:
+        """One episode of ``policy`` (reading ``sensors``; None: positions, a baseline) → its track, with the
+        exact coverage of every step (the buoys in service only)."""
+        c = self.params.coverage
+        env, _ = general_evaluation_env(self.params, self.region, self.mission.buoys, 1, sensors, self.current)
+        if self.patch is not None:
+            env.patch = self.patch
+        trace = rollout(env, policy, self.steps, self.mission.seed, self.starts)
+        positions, alive = trace["positions"][:, 0], trace["alive"][:, 0]
+        if self.starts.lose:  # a lost buoy stays where it stopped and covers nothing
+            cover = np.array([coverage_fraction(self.region.polygon, xy[up][None], c.radius, c.edges)[0]
+                              for xy, up in zip(positions, alive, strict=True)])
+        else:
+            cover = coverage_fraction(self.region.polygon, positions, c.radius, c.edges)
+        return Track(method, positions, cover)
 
 
 def summary(p: Plan) -> dict:

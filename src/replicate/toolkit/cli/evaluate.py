@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from replicate.core.params import Params, load_params
 from replicate.core.schema import MAX_AGENTS, ConfigError
 from replicate.toolkit.cli.inputs import (
     claim_out_file,
+    claim_run_folder,
     number_pair,
     overrides,
     resolve_region,
@@ -112,24 +114,21 @@ def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
         raise ConfigError(f"--n-agents must be from 2 to {MAX_AGENTS}, got {n}")
     if not 0 <= args.lose < n:
         raise ConfigError(f"--lose must be from 0 to {n - 1} (a fleet of {n} keeps at least one), got {args.lose}")
-    current = None
-    if args.current is not None:
-        try:
-            current = tuple(float(v) for v in args.current.split(","))
-        except ValueError:
-            current = ()
-        if len(current) != 2 or not all(math.isfinite(v) for v in current):
-            raise ConfigError(f"--current expects two numbers U,V (simulation m/s), got {args.current!r}")
-        top = top_speed(params.world)  # a buoy's top speed over the water
-        if math.hypot(*current) >= top:
-            raise ConfigError(f"--current {args.current}: a drift of {math.hypot(*current):.3g} simulation m/s is at "
-                              f"least a buoy's top speed ({top:.3g}); the buoys would be swept off, give a slower one")
-    region, units, current = policy_world(args, params, n, current)
+    region, units, current = policy_world(args, params, n, simulation_drift(args, params))
     out = claim_out_file(Path(args.out or f"my-runs/policy-{region.name}-n{n}.json"), args.force, held=args.held)
+    field = None if region.utm_crs is None else out.parent / f"{out.stem}-episode"  # a lake on the map: for a GIS
+    created = field is not None and claim_run_folder(field, args.force, args.held)
     result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current, not args.no_progress,
                              geodesic=args.geodesic, beside=True, decentralised=args.decentralised)
     si = units.describe(params.world, params.coverage)
     result["si"] = {**si, "mission_s": units.steps_time_s(result["steps"])}
+    try:
+        if field is not None:
+            result["field_files"] = [str(p) for p in episode_files(args, params, region, units, n, current, field)]
+    except BaseException:
+        if created:
+            shutil.rmtree(field, ignore_errors=True)  # interrupted: no half-written folder beside no result
+        raise
     artifacts.write_json(out, result)
     cov, rivals = result["coverage"], result["baselines"]
     lloyd = rivals[lloyd_name(rivals)]
@@ -144,8 +143,41 @@ def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
              if "decentralised_lloyd" in rivals else "") +
           f"furthest outside the water {result['max_outside_m']:.3g} m; buoys of {si['radius_m']:.3g} m at "
           f"{si['top_speed_ms']:g} m/s: {result['steps']} control periods of {si['control_period_s']:.3g} s, "
-          f"{result['si']['mission_s'] / 60:.1f} min; wrote {out}")
+          f"{result['si']['mission_s'] / 60:.1f} min; wrote {out}"
+          + (f" and its first episode for a GIS in {field}/" if field is not None else ""))
     return 0
+
+
+def episode_files(args: argparse.Namespace, params: Params, region, units, n: int, current, out: Path) -> list[Path]:
+    """One episode of the evaluation's starts and events, flown by the policy and its rivals from the evaluation
+    seed, written for a GIS into ``out`` (``toolkit.field``: GeoPackage, GeoJSON, waypoints, map)."""
+    from replicate.core.studies import StartsConfig
+    from replicate.toolkit.field import write_mission
+    from replicate.toolkit.plan import Mission, plan_on
+
+    drift = None if current is None else tuple(float(v) for v in units.speed_ms(np.asarray(current)))
+    mission = Mission(n, float(units.length_m(params.coverage.radius)), float(units.speed_ms(top_speed(params.world))),
+                      current_ms=drift, seed=params.evaluate.seed)
+    p = plan_on(region, params, mission, Path(args.policy), StartsConfig(start=args.starts, lose=args.lose),
+                decentralised=args.decentralised)
+    return write_mission(p, out, "episode", animation=False)
+
+
+def simulation_drift(args: argparse.Namespace, params: Params) -> tuple[float, float] | None:
+    """``--current U,V`` (simulation m/s), refused by name unless two numbers slower than a buoy."""
+    if args.current is None:
+        return None
+    try:
+        current = tuple(float(v) for v in args.current.split(","))
+    except ValueError:
+        current = ()
+    if len(current) != 2 or not all(math.isfinite(v) for v in current):
+        raise ConfigError(f"--current expects two numbers U,V (simulation m/s), got {args.current!r}")
+    top = top_speed(params.world)  # a buoy's top speed over the water
+    if math.hypot(*current) >= top:
+        raise ConfigError(f"--current {args.current}: a drift of {math.hypot(*current):.3g} simulation m/s is at "
+                          f"least a buoy's top speed ({top:.3g}); the buoys would be swept off, give a slower one")
+    return current
 
 
 def policy_world(args: argparse.Namespace, params: Params, n: int, current):

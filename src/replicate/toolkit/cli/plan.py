@@ -78,14 +78,11 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     created = claim_run_folder(out, args.force, args.held)
     try:
-        from replicate.toolkit.field import write_field_outputs
+        from replicate.toolkit.field import write_mission
         from replicate.toolkit.plan import plan, summary
-        from replicate.toolkit.plan_map import plan_animation, plan_map
 
         p = plan(Path(args.region), params, mission, policy)
-        written = write_field_outputs(p, out)
-        written.append(plan_map(p, out / "plan.png"))
-        written.append(plan_animation(p, out / "plan.gif", progress=not args.no_progress))
+        written = write_mission(p, out, progress=not args.no_progress)
     except BaseException:
         if created:
             import shutil
