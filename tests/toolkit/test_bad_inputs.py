@@ -193,3 +193,35 @@ def test_silent_wrong_results_are_refused(capsys, tmp_path, monkeypatch):
     (tmp_path / "run" / "run.json").write_text("{not json")
     code, err = run(capsys, "train", "--out", str(tmp_path / "run"))
     assert code == 2 and "run.json: not a readable run record" in err
+
+
+def test_a_projected_file_with_x_and_y_swapped_is_refused_and_an_unchecked_policy_is_said(tmp_path):
+    """Eastings and northings swapped in a UTM file land thousands of kilometres off the zone: refused with
+    where they land. A policy exported before policies carried a checksum is read with a note saying so."""
+    import io
+    import warnings
+
+    import geopandas as gpd
+    import shapely
+    import torch
+
+    from replicate.learn.policy import load_policy
+    from replicate.world.regions import RegionError, region_from_file
+
+    root = Path(__file__).resolve().parents[2]
+    utm = gpd.read_file(root / "data" / "lakes" / "lake_karaguz.geojson").to_crs(32641)
+    utm.to_file(tmp_path / "utm.geojson")
+    assert region_from_file(tmp_path / "utm.geojson").utm_crs == "EPSG:32641"
+    utm.set_geometry(shapely.transform(utm.geometry.values, lambda xy: xy[:, ::-1])).to_file(tmp_path / "swap.geojson")
+    with pytest.raises(RegionError, match=r"land at 108.*outside where EPSG:32641 is used .*are x and y swapped"):
+        region_from_file(tmp_path / "swap.geojson")
+
+    module, meta = load_policy(root / "policies" / "general.pt")
+    meta.pop("checksum")
+    buf = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.jit.save(module, buf, _extra_files={"metadata.json": json.dumps(meta)})
+    (tmp_path / "old.pt").write_bytes(buf.getvalue())
+    with pytest.warns(UserWarning, match="old.pt: carries no checksum .* export it again"):
+        load_policy(tmp_path / "old.pt")

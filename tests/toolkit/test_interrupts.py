@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import sys
+from pathlib import Path
 
 from replicate.compare.tuning import QuietInterrupt
 from replicate.toolkit.cli import command
@@ -30,3 +31,31 @@ def test_a_trial_stopped_by_ctrl_c_is_not_logged_as_a_failure():
     quiet = QuietInterrupt()
     assert not quiet.filter(record(KeyboardInterrupt(), "Trial 3 failed with value None."))
     assert quiet.filter(record(ValueError("a real failure"), "Trial 4 failed with value None."))
+
+
+def test_cover_interrupted_after_its_training_keeps_the_trained_run(monkeypatch, capsys, tmp_path):
+    """Ctrl-C in `cover --method cr` once training has finished (while Lloyd is evaluated): the finished run
+    stays, and the message names the command that measures it; interrupted before any training, nothing stays."""
+    import json
+
+    from replicate.toolkit.cli import cover
+
+    def trained_then_interrupted(args, params, out, tempfile):
+        (out / "run").mkdir(parents=True)
+        (out / "run" / "run.json").write_text(json.dumps({"status": "finished"}))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cover, "cover_into", trained_then_interrupted)
+    lake = str(Path(__file__).resolve().parents[2] / "data" / "bedok_outline.geojson")
+    out = tmp_path / "c"
+    assert command.main(["cover", "--method", "cr", "--region", lake, "--out", str(out)]) == 130
+    assert (out / "run" / "run.json").exists()
+    assert f"`replicate evaluate {out / 'run'}` measures it" in capsys.readouterr().err
+
+    def interrupted(args, params, out, tempfile):
+        (out / "run").mkdir(parents=True)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cover, "cover_into", interrupted)
+    assert command.main(["cover", "--method", "cr", "--region", lake, "--out", str(tmp_path / "d")]) == 130
+    assert not (tmp_path / "d").exists()

@@ -98,8 +98,10 @@ def load_policy(path: str | Path) -> tuple[torch.jit.ScriptModule, dict]:
         metadata = json.loads(extra["metadata.json"])
     except Exception as exc:  # noqa: BLE001 - any load failure is a corrupt file
         raise CheckpointError(f"{path}: not a readable exported policy ({type(exc).__name__}: {exc})") from exc
-    # a file written before policies carried a checksum is read unchecked
-    if "checksum" in metadata and checksum(module, metadata) != metadata["checksum"]:
+    if "checksum" not in metadata:  # written before policies carried one: read, but said
+        warnings.warn(f"{path}: carries no checksum (exported by an older version), so damage to it cannot be "
+                      "detected; export it again to add one", stacklevel=2)
+    elif checksum(module, metadata) != metadata["checksum"]:
         raise CheckpointError(f"{path}: damaged: its weights or metadata are not the ones exported (checksum "
                               "mismatch); export the policy again")
     return module, metadata

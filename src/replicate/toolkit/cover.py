@@ -102,7 +102,9 @@ def deployment(region, params: Params, n_agents: int, steps: int, speed_ms: floa
     radius in metres, the episode's steps, and in SI (``world.units``, buoys of top speed ``speed_ms``) the control
     period and the mission's duration."""
     units = Units.of(params.world, params.coverage, params.coverage.radius * region.scale, speed_ms)
-    return {"region": region.name, "utm_crs": region.utm_crs, "scale_m_per_sim_m": region.scale,
+    return {"region": region.name, "centre_lonlat": region.centre_lonlat(),
+            "centre": region.centre_text(), "utm_crs": region.utm_crs,
+            "scale_m_per_sim_m": region.scale,
             "area_m2": region.area * region.scale**2, "n_agents": n_agents,
             "radius_m": params.coverage.radius * region.scale, "episode_length": steps,
             "top_speed_ms": speed_ms, "control_period_s": units.period_s, "mission_s": units.steps_time_s(steps)}

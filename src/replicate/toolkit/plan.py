@@ -208,7 +208,7 @@ def summary(p: Plan) -> dict:
     u, period = p.units, p.units.period_s
     out = {
         "lake": p.region.name, "utm_crs": p.region.utm_crs, "area_m2": p.region.area * p.region.scale**2,
-        "centre_lonlat": p.region.centre_lonlat(),
+        "centre_lonlat": p.region.centre_lonlat(), "centre": p.region.centre_text(),
         "attribution": p.region.attribution, "buoys": p.mission.buoys,
         **u.describe(p.params.world, p.params.coverage, p.sensors),
         "launch_lonlat": list(p.mission.launch) if p.mission.launch else None,

@@ -62,6 +62,13 @@ class Region:
         lon, lat = Transformer.from_crs(self.utm_crs, "EPSG:4326", always_xy=True).transform(*self.offset)
         return round(float(lon), 6), round(float(lat), 6)
 
+    def centre_text(self) -> str:
+        """The centre as a user reads it on a map, "60.8787°E 56.1036°N" ("" for a synthetic region)."""
+        if (centre := self.centre_lonlat()) is None:
+            return ""
+        lon, lat = centre
+        return f"{abs(lon):.4f}°{'E' if lon >= 0 else 'W'} {abs(lat):.4f}°{'N' if lat >= 0 else 'S'}"
+
     def map_polygon(self) -> Polygon:
         """The water in UTM metres (the map's CRS, ``utm_crs``)."""
         return affinity.affine_transform(self.polygon, [self.scale, 0, 0, self.scale, *self.offset])
@@ -168,6 +175,27 @@ def check_declared_crs(path: Path, read_as) -> None:
                           "the file with a CRS the readers take (an EPSG code)")
 
 
+AREA_OF_USE_SLACK = 2.0  # degrees a lake may reach past its CRS's stated area of use (a UTM zone's edge)
+
+
+def check_area_of_use(path: Path, polys) -> None:
+    """Refuse coordinates far outside the area where their CRS is used (a UTM file with easting and northing
+    swapped lands thousands of kilometres off its zone, or nowhere on Earth): named with where they land."""
+    area = polys.crs.area_of_use
+    if area is None or (area.west <= -180 and area.east >= 180):  # a world CRS: no zone to stray from
+        return
+    west, south, east, north = polys.to_crs("EPSG:4326").total_bounds
+    slack = AREA_OF_USE_SLACK
+    inside = (np.isfinite([west, south, east, north]).all() and south >= area.south - slack
+              and north <= area.north + slack and west >= area.west - slack and east <= area.east + slack)
+    if not inside:
+        where = ("nowhere on Earth" if not np.isfinite([west, south, east, north]).all()
+                 else f"at {west:.4g}…{east:.4g}°E, {south:.4g}…{north:.4g}°N")
+        raise RegionError(f"{path}: its coordinates land {where}, outside where {polys.crs.to_string()} is used "
+                          f"({area.west:g}…{area.east:g}°E, {area.south:g}…{area.north:g}°N); are x and y swapped, or "
+                          "is the CRS not the one the coordinates are in?")
+
+
 def read_outline(path: str | Path, layer: str | None = None):
     """Read a vector file with geopandas and return (polygon, crs, properties of its feature)."""
     import geopandas as gpd
@@ -210,6 +238,7 @@ def read_outline(path: str | Path, layer: str | None = None):
             raise RegionError(f"{path}: the coordinates ({minx:.6g} … {maxx:.6g}, {miny:.6g} … {maxy:.6g}) are not "
                               f"longitudes and latitudes, but the file's CRS is {polys.crs.to_string()} ({why}); "
                               "write the file with the CRS its coordinates are in")
+    check_area_of_use(path, polys)
     utm = estimate_utm(polys, path)
     areas = polys.to_crs(utm).area
     row = polys.loc[areas.idxmax()]

@@ -4,6 +4,7 @@ trained there."""
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 from replicate.core import artifacts
@@ -54,18 +55,30 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     created = claim_run_folder(out, args.force, args.held)
     run = out / "run"
-    args.interrupted_hint = lambda: (f"`replicate train --resume {run}` continues the training, and `replicate "
-                                     f"evaluate {run}` then measures it" if (run / "checkpoint.pt").exists() else "")
+    args.interrupted_hint = lambda: interrupted_hint(run)
     try:
         s = cover_into(args, params, out, tempfile)
     except BaseException:
-        if created and not (out / "run" / "checkpoint.pt").exists():
+        if created and not interrupted_hint(run):
             import shutil
 
             shutil.rmtree(out, ignore_errors=True)  # refused or interrupted before training: leave nothing behind
         raise
     print_cover(args, s, out)
     return 0
+
+
+def interrupted_hint(run: Path) -> str:
+    """What continues a ``cover --method cr`` stopped in ``run``: resuming its training, or (trained to the end)
+    evaluating it; "" when it had not trained enough to keep (nothing to keep)."""
+    if (run / "checkpoint.pt").exists():
+        return (f"`replicate train --resume {run}` continues the training, and `replicate evaluate {run}` then "
+                "measures it")
+    try:
+        finished = json.loads((run / "run.json").read_text()).get("status") == "finished"
+    except (OSError, ValueError, AttributeError):
+        finished = False
+    return f"the training had finished: `replicate evaluate {run}` measures it" if finished else ""
 
 
 def check_cover_args(args: argparse.Namespace, params: Params) -> None:
@@ -105,10 +118,10 @@ def print_cover(args: argparse.Namespace, s: dict, out: Path) -> None:
     """The summary of a `cover` run, as the user reads it."""
     cov, lloyd = s["coverage"], s["lloyd_coverage"]
     chosen = "" if args.radius_m else " (the paper's density; give --radius-m for your buoys)"
-    print(f"{s['region']}: {s['n_agents']} buoys of radius {s['radius_m']:.3g} m{chosen} on {s['area_m2']:.4g} m² "
-          f"({s['utm_crs']}, 1 sim m = {s['scale_m_per_sim_m']:.4g} m); at {s['top_speed_ms']:g} m/s a control "
-          f"period of {s['control_period_s']:.3g} s, {s['episode_length']} periods: a mission of "
-          f"{s['mission_s'] / 60:.1f} min (`replicate plan` writes its tracks as GIS files)")
+    print(f"{s['region']} (centred at {s['centre']}): {s['n_agents']} buoys of radius {s['radius_m']:.3g} m{chosen} "
+          f"on {s['area_m2']:.4g} m² ({s['utm_crs']}, 1 sim m = {s['scale_m_per_sim_m']:.4g} m); at "
+          f"{s['top_speed_ms']:g} m/s a control period of {s['control_period_s']:.3g} s, {s['episode_length']} "
+          f"periods: a mission of {s['mission_s'] / 60:.1f} min (its episode for a GIS: episode.gpkg)")
     if args.method == "general":
         best = s["baselines"]["best_layout"]["coverage"]["mean"]
         lloyd_name = "tuned Lloyd" if s["lloyd_baseline"] == "lloyd_tuned" else "Lloyd"

@@ -96,11 +96,9 @@ def run(args: argparse.Namespace) -> int:
 def print_plan(s: dict, written: list[Path]) -> None:
     """The plan as a field team reads it."""
     km2 = s["area_m2"] / 1e6
-    lon, lat = s["centre_lonlat"]
-    print(f"{s['lake']} (centred at {abs(lon):.4f}°{'E' if lon >= 0 else 'W'} {abs(lat):.4f}°{'N' if lat >= 0 else 'S'}"
-          f"): {s['buoys']} buoys of {s['radius_m']:g} m radius at {s['top_speed_ms']:g} m/s on "
-          f"{km2:.3g} km² ({s['utm_crs']}); a control period of {s['control_period_s']:.3g} s, a mission of "
-          f"{s['mission_s'] / 60:.1f} min")
+    print(f"{s['lake']} (centred at {s['centre']}): {s['buoys']} buoys of {s['radius_m']:g} m radius at "
+          f"{s['top_speed_ms']:g} m/s on {km2:.3g} km² ({s['utm_crs']}); a control period of "
+          f"{s['control_period_s']:.3g} s, a mission of {s['mission_s'] / 60:.1f} min")
     best = s["best_layout"]["coverage"]
     for name, m in s["methods"].items():
         print(f"  {name}: covers {100 * m['coverage']:.3g} % of the lake at the end ({m['of_best_layout']:.0%} of "
