@@ -50,3 +50,12 @@ def replicate(capsys, monkeypatch):
         return code, printed.err
 
     return run
+
+
+@pytest.fixture(autouse=True)
+def progress_as_the_package_starts():
+    """A command run in this process asks for progress log lines (its stderr is no terminal): not for the next."""
+    yield
+    from replicate.core import progress
+
+    progress.log_lines(False)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import stat
 from pathlib import Path
 
 import geopandas as gpd
@@ -70,6 +72,10 @@ def test_out_files_are_checked_before_the_work(capsys, tmp_path, verb):
     code, err = run(capsys, verb, str(run_dir), "--out", str(tmp_path / "done.txt"))
     assert code == 2 and "exists; pass --force to replace it" in err
     assert (tmp_path / "done.txt").read_text() == "a result"
+    os.mkfifo(tmp_path / "pipe")  # a pipe (or /dev/null) is not replaced by a file, even with --force
+    code, err = run(capsys, verb, str(run_dir), "--out", str(tmp_path / "pipe"), "--force")
+    assert code == 2 and "not a regular file (a device or a pipe)" in err
+    assert stat.S_ISFIFO((tmp_path / "pipe").stat().st_mode)
 
 
 def test_a_missing_observation_file_is_named(capsys, tmp_path):
@@ -108,6 +114,7 @@ def test_outline_files_with_nan_vertices_or_an_unknown_crs_are_named(capsys, tmp
      "tuning.general_baselines.starts must be at least 1"),
     (["tune", "general-baselines", "--set", "evaluate.geodesic.spacing=0"],
      "evaluate.geodesic.spacing must be above 0, got 0"),
+    (["cover", "--region", "square"], "a named region such as 'square' goes with `replicate evaluate --policy`"),
     (["cover", "--region", "lake.geojson", "--episodes", "100"], "--episodes goes with --method cr"),
     (["cover", "--region", "lake.geojson", "--policy", "nowhere.pt"], "--policy nowhere.pt: no such file"),
     (["cover", "--region", "lake.geojson", "--finetune", "-5"], "--finetune must be 0 (zero-shot)"),

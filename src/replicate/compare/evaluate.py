@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 from replicate.compare import baselines, metrics
 from replicate.compare.best_layout import best_coverage
@@ -22,6 +21,7 @@ from replicate.compare.stats import mean_interval
 from replicate.core import artifacts
 from replicate.core.executor import Beside
 from replicate.core.params import Params, RunConfig, run_config
+from replicate.core.progress import bar as progress_bar
 from replicate.core.schema import ConfigError
 from replicate.core.sections import SensorsConfig
 from replicate.core.studies import LloydConfig, NaiveConfig, StartsConfig
@@ -175,7 +175,7 @@ def steps_bar(params: Params, rc: RunConfig, progress: bool, what: str, steps: i
     """A progress bar over the environment steps of an evaluation (and of its robustness scenarios)."""
     scenarios = scenarios * sum(round(s.horizon * rc.world.episode_length) for s in params.evaluate.robustness.values())
     total = (rc.world.episode_length if steps is None else steps) + scenarios
-    return tqdm(total=total, desc=what, unit="step", disable=not progress, leave=False)
+    return progress_bar(progress, total=total, desc=what, unit="step", leave=False)
 
 
 def evaluate_baseline(name: str, params: Params, region: Region, config: str = "paper",
@@ -240,7 +240,7 @@ class Phases:
 
     def __init__(self, where: str, total: int, progress: bool):
         self.where, self.started = where, False
-        self.bar = tqdm(total=total, unit="phase", disable=not progress, leave=False)
+        self.bar = progress_bar(progress, total=total, unit="phase", leave=False)
 
     def __enter__(self):
         return self

@@ -17,8 +17,7 @@ import multiprocessing
 import os
 from collections.abc import Callable, Iterable
 
-from tqdm import tqdm  # a terminal's bar: the commands' (the pipeline's notebooks show none)
-
+from replicate.core.progress import bar as progress_bar
 from replicate.core.schema import ConfigError
 
 log = logging.getLogger(__name__)
@@ -45,7 +44,7 @@ def map_jobs(fn: Callable, jobs: Iterable, executor: str = "local", workers: int
     ``progress`` names a bar of the jobs done (a command's; the pipeline's stages show none). An error or Ctrl-C
     stops the workers at once: the local pool is terminated, Ray's tasks are cancelled."""
     jobs = list(jobs)
-    bar = tqdm(total=len(jobs), desc=progress, unit="job", disable=progress is None, leave=False)
+    bar = progress_bar(progress is not None, total=len(jobs), desc=progress, unit="job", leave=False)
     with bar:
         if check_executor(executor) == "ray":
             ray = ray_runtime()

@@ -50,9 +50,9 @@ def locked(out: Path, option: str = "--out") -> Iterator[Path]:
     """Hold the lock of output ``out`` for the block; refused by name while another process holds it."""
     out = Path(out)
     lock = lock_path(out)
-    lock.parent.mkdir(parents=True, exist_ok=True)
     for _ in range(2):  # a second try after taking over a stale lock
         try:
+            lock.parent.mkdir(parents=True, exist_ok=True)
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
         except FileExistsError:
             pid = holder(lock)
@@ -64,6 +64,9 @@ def locked(out: Path, option: str = "--out") -> Iterator[Path]:
                     from None
             lock.unlink(missing_ok=True)  # its process is gone: a killed command's lock
             continue
+        except OSError as exc:  # a read-only or full disk, a folder without write permission
+            raise ConfigError(f"{option} {out}: cannot be written there ({exc.strerror}); choose a writable "
+                              "folder") from None
         with os.fdopen(fd, "w") as fh:
             fh.write(f"{os.getpid()}\n")
         break

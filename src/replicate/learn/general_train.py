@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from replicate.core import artifacts
 from replicate.core.params import Params
+from replicate.core.progress import bar as progress_bar
 from replicate.core.schema import to_dict
 from replicate.core.sections import GeneralConfig
 from replicate.learn.fingerprint import general_fingerprint
@@ -93,7 +93,7 @@ class GeneralTrainer:
         t0, c0 = time.perf_counter(), time.process_time()
         if self.initial_actor is not None:
             self.validate(0)  # the starting weights are the ones to beat
-        for batch in tqdm(range(batches), disable=not self.progress, unit="batch"):
+        for batch in progress_bar(self.progress, iterable=range(batches), desc="training", unit="batch"):
             sigma = noise_sigma_from_end(gc, batch / batches)
             self.agent.scale_learning_rates(lr_factor(gc, batch / batches))
             world = self.worlds[batch % len(self.worlds)]

@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 from replicate.core import artifacts
 from replicate.core.artifacts import CHECKPOINT_FORMAT, CheckpointError
 from replicate.core.params import RunConfig
+from replicate.core.progress import bar as progress_bar
 from replicate.core.schema import ConfigError, to_dict
 from replicate.learn import run_stack
 from replicate.learn.fingerprint import fingerprint
@@ -140,8 +140,8 @@ class Trainer:
         n_env, runs = algo.n_envs, len(self.seeds)
         for k, out in enumerate(self.outs):
             artifacts.write_json(out / "run.json", {**self.run_record(k), "status": "running"})
-        bar = tqdm(total=self.episodes * runs, initial=len(self.rows[0]) * runs, disable=not self.progress,
-                   unit="ep", smoothing=0.05)
+        bar = progress_bar(self.progress, total=self.episodes * runs, initial=len(self.rows[0]) * runs,
+                           desc="training", unit="episode", smoothing=0.05)
         t0, c0 = time.perf_counter() - self.wall, time.process_time() - self.cpu
         for batch in range(len(self.rows[0]) // n_env, self.episodes // n_env):
             progress = batch * n_env / self.episodes

@@ -12,6 +12,7 @@ from shapely import affinity
 
 from replicate.compare.evaluate import actor_policy, evaluation_env, rollout, run_actors
 from replicate.core.params import Params
+from replicate.core.progress import bar as progress_bar
 from replicate.toolkit import plots
 from replicate.world.geometry import coverage_fraction_exact, coverage_polygons
 from replicate.world.regions import Region
@@ -120,13 +121,12 @@ def frame_axes(ax, water: Polygon, patch: Polygon | None, trace: np.ndarray, rad
 def save_gif(anim, frames: int, out: Path, fps: int, progress: bool) -> Path:
     """Write an animation as a GIF atomically (mode 0644), with a progress bar of its frames."""
     from matplotlib.animation import PillowWriter
-    from tqdm.auto import tqdm
 
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile(dir=out.parent, prefix=f".{out.name}.", suffix=".gif", delete=False) as tmp:
         tmp_path = Path(tmp.name)
     try:
-        with tqdm(total=frames, desc=f"drawing {out.name}", unit="frame", disable=not progress, leave=False) as bar:
+        with progress_bar(progress, total=frames, desc=f"drawing {out.name}", unit="frame", leave=False) as bar:
             anim.save(tmp_path, writer=PillowWriter(fps=fps), progress_callback=lambda i, n: bar.update(1))
         tmp_path.chmod(0o644)
         tmp_path.replace(out)

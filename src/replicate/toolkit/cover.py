@@ -47,12 +47,23 @@ from replicate.world.scenario import horizon, scaled_setup
 from replicate.world.units import BOB_SPEED, Units
 
 
+def outline_path(region: str) -> Path:
+    """``--region``'s file, refused by name when there is none (a named region is not a lake file)."""
+    path = Path(region)
+    if not path.exists():
+        named = "" if path.suffix else (f"; a named region such as {region!r} goes with `replicate evaluate "
+                                         "--policy` or `train`")
+        raise RegionError(f"--region {region}: no such file; `cover` takes a lake's outline as a vector file "
+                          f"(GeoJSON, shapefile, GeoPackage) or OSM XML{named}")
+    return path
+
+
 def outline_file(region: str | None, place: str | None, name: str | None, workdir: Path) -> Path:
     """A vector file holding the outline: the file given, an OSM XML file parsed, or an OSM place queried."""
     if (region is None) == (place is None):
         raise RegionError("give exactly one of --region FILE or --place NAME")
     if region is not None:
-        path = Path(region)
+        path = outline_path(region)
         if path.suffix.lower() == ".osm":
             outline = outline_from_osm_xml(path, name or path.stem)
             outline.write(workdir / "outline.geojson")

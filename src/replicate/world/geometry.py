@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 import shapely
 from shapely.geometry import Polygon
-from tqdm import tqdm  # a terminal's bar: in a notebook's worker processes the widget bar cannot reach the page
 
+from replicate.core.progress import bar as progress_bar
 from replicate.world.overlap import near_another, overlap_runs
 
 
@@ -320,8 +320,8 @@ def _build_area_table(region_wkb, radius, edges, h, eroded_wkb, dilated_wkb):
     pts = np.stack([x[near], y[near]], axis=1)
     areas = np.empty(len(pts))
     chunk = 20_000  # the first run on a long shore builds for a minute or more: a bar on a terminal
-    for start in tqdm(range(0, len(pts), chunk), desc="coverage area table (cached for later runs)", unit="chunk",
-                      disable=None if len(pts) > 5 * chunk else True, leave=False):
+    for start in progress_bar(None if len(pts) > 5 * chunk else False, iterable=range(0, len(pts), chunk),
+                              desc="coverage area table (cached for later runs)", unit="chunk", leave=False):
         cov = shapely.polygons(pts[start:start + chunk, None, :] + offsets)
         areas[start:start + chunk] = shapely.area(shapely.intersection(cov, region))
     table[near] = areas

@@ -13,6 +13,7 @@ from importlib.metadata import version
 
 import shapely
 
+from replicate.core import progress
 from replicate.core.artifacts import CheckpointError
 from replicate.core.schema import ConfigError
 from replicate.toolkit.cli import (
@@ -47,7 +48,8 @@ def common_options(suppress: bool) -> argparse.ArgumentParser:
                    help="override a value of the parameters file, e.g. configs.tuned.n_envs=25 (repeatable)")
     if suppress:
         p.add_argument("--no-progress", action="store_true",
-                       help="no progress bars (also without a terminal, or with TQDM_DISABLE set)")
+                       help="no progress (also with TQDM_DISABLE set); without a terminal, progress is a log line "
+                            "per phase and every 15 s")
     return p
 
 
@@ -93,8 +95,10 @@ def parsed(argv: list[str] | None) -> argparse.Namespace:
         args.run = args.run or args.run_option
     args.params = args.params_after_verb or args.params
     args.set = (args.set or []) + (args.set_after_verb or [])
-    # bars only on a terminal: a log or a pipe gets no carriage returns
-    args.no_progress = args.no_progress or bool(os.environ.get("TQDM_DISABLE")) or not sys.stderr.isatty()
+    # bars only on a terminal; a log or a pipe gets progress as log lines, without carriage returns
+    quiet = args.no_progress or bool(os.environ.get("TQDM_DISABLE"))
+    args.no_progress = quiet or not sys.stderr.isatty()
+    progress.log_lines(not quiet and not sys.stderr.isatty())
     return args
 
 

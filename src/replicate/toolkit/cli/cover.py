@@ -112,6 +112,10 @@ def check_cover_args(args: argparse.Namespace, params: Params) -> None:
         positive(args.radius_m, "--radius-m")
     if args.n_agents is not None and not 1 <= args.n_agents <= MAX_AGENTS:
         raise ConfigError(f"--n-agents must be between 1 and {MAX_AGENTS}, got {args.n_agents}")
+    if args.region is not None:
+        from replicate.toolkit.cover import outline_path
+
+        outline_path(args.region)  # before the output folder is made
 
 
 def print_cover(args: argparse.Namespace, s: dict, out: Path) -> None:

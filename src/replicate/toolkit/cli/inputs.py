@@ -87,6 +87,8 @@ def claim_out_file(out: Path, force: bool, option: str = "--out", held: ExitStac
     out = Path(out)
     if out.is_dir():
         raise ConfigError(f"{option} {out}: is a folder; give the path of a file")
+    if out.exists() and not out.is_file():  # a device or a pipe (/dev/null) would be replaced by a file
+        raise ConfigError(f"{option} {out}: not a regular file (a device or a pipe); give the path of a file")
     if out.exists() and not force:
         raise ConfigError(f"{option} {out}: exists; pass --force to replace it, or choose another path")
     try:

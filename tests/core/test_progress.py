@@ -1,0 +1,43 @@
+"""Progress where no terminal draws a bar: log lines, each phase at once and a count now and then."""
+
+from __future__ import annotations
+
+import logging
+
+from replicate.core import progress
+
+
+def test_a_bar_not_drawn_is_logged_by_phase_and_now_and_then(caplog, monkeypatch):
+    monkeypatch.setattr(progress, "LOG_EVERY_S", 0.0)  # every count
+    progress.log_lines(True)
+    with caplog.at_level(logging.INFO, logger="replicate.progress"):
+        with progress.bar(False, total=3, unit="phase", leave=False) as bar:
+            bar.set_description("lake: the policy")
+            bar.update()
+            bar.set_description("lake: Lloyd")
+            bar.update(2)
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines[0] == "lake: the policy: 0/3 phases, 0 s"
+    assert "lake: Lloyd: 1/3 phases, 0 s" in lines
+    assert lines[-1] == "lake: Lloyd: 3/3 phases (done), 0 s" and lines.count(lines[-1]) == 1
+
+
+def test_no_lines_unless_asked_and_a_bar_where_asked(caplog):
+    with caplog.at_level(logging.INFO, logger="replicate.progress"):
+        with progress.bar(False, total=2, desc="quiet") as bar:
+            bar.update(2)
+    assert not caplog.records
+    assert not progress.bar(True, total=1).disable and progress.bar(False, total=1).disable
+
+
+def test_a_command_without_a_terminal_logs_its_steps(replicate, caplog, tmp_path):
+    with caplog.at_level(logging.INFO, logger="replicate.progress"):
+        code, err = replicate("--set", "evaluate.episodes=2", "evaluate", "--baseline", "lloyd", "--region",
+                              "square", "--out", str(tmp_path / "lloyd.json"))
+    assert code == 0, err
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines[0].startswith("evaluating lloyd: 0/") and lines[-1].endswith("steps (done), 0 s")
+    caplog.clear()
+    code, err = replicate("--set", "evaluate.episodes=2", "evaluate", "--no-progress", "--baseline", "lloyd",
+                          "--region", "square", "--out", str(tmp_path / "quiet.json"))
+    assert code == 0 and not caplog.records  # asked for none
