@@ -19,3 +19,17 @@ def test_an_output_on_a_read_only_disk_is_named(tmp_path, monkeypatch):
                                           "choose a writable folder"):
         with outputs.locked(tmp_path / "run"):
             pass
+
+
+def test_a_result_left_aside_by_a_killed_command_is_put_back(tmp_path):
+    """`cover --force` killed with kill -9 leaves its half-written folder and the old result aside: the next
+    command to claim the output finds the old result in place (and is then refused without --force)."""
+    out = tmp_path / "cover"
+    (tmp_path / ".cover.replaced").mkdir()
+    (tmp_path / ".cover.replaced" / "summary.json").write_text("the old result")
+    out.mkdir()
+    (out / "partial").write_text("half")
+    with pytest.warns(UserWarning, match="put back the result that a killed command had moved aside"):
+        with outputs.locked(out):
+            assert (out / "summary.json").read_text() == "the old result" and not (out / "partial").exists()
+    assert not (tmp_path / ".cover.replaced").exists()

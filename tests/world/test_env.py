@@ -189,9 +189,12 @@ def test_a_region_narrower_than_the_start_patch_is_refused_by_name(params):
 
     strip = shapely.box(0, 0, 3800, 1)
     strip = shapely.affinity.scale(strip, (9 / strip.area) ** 0.5, (9 / strip.area) ** 0.5, origin=(0, 0))
-    with pytest.raises(RegionError, match=r"too narrow .* 0.5 m start patch: the widest circle of open water in it "
-                                          r"is 0.048\d simulation m across"):
+    with pytest.raises(RegionError, match=r"river is too narrow for the buoys' start patch, 0.5 m wide: the widest "
+                                          r"circle of open water in it is 0.048\d m across"):
         CoverageEnv(Region("river", strip), params.world, params.coverage)
+    scaled = Region("river", strip, scale=20.0)  # a lake file at 20 m per simulation metre: said in metres
+    with pytest.raises(RegionError, match=r"start patch, 10 m wide: .* is 0.9\d* m across \(area 3600 m²\)"):
+        CoverageEnv(scaled, params.world, params.coverage)
 
 
 def test_an_island_filling_the_lake_is_measured_by_the_water_around_it(params):
@@ -200,5 +203,5 @@ def test_an_island_filling_the_lake_is_measured_by_the_water_around_it(params):
     from replicate.world.regions import Region, RegionError
 
     lake = shapely.box(0, 0, 3.4, 3.4).difference(shapely.box(0.3, 0.3, 3.1, 3.1))
-    with pytest.raises(RegionError, match=r"widest circle of open water in it is 0.3\d* simulation m across"):
+    with pytest.raises(RegionError, match=r"moat is too narrow .* widest circle of open water in it is 0.3\d* m across"):
         CoverageEnv(Region("moat", lake), params.world, params.coverage)

@@ -4,7 +4,8 @@
   command that would write the same output is refused by name while the first runs; a lock whose process is gone
   (a command killed with ``kill -9``) is taken over.
 * **Moved aside, not deleted**: ``--force`` over a finished result moves the old one to ``.NAME.replaced`` and
-  deletes it only once the new result is complete; a command that fails or is interrupted puts it back.
+  deletes it only once the new result is complete; a command that fails or is interrupted puts it back, and the
+  next command to claim the output puts back what a killed one (``kill -9``) left aside.
 
 A command holds its claims in a ``contextlib.ExitStack`` (``replicate.toolkit.cli.command``), released when it
 ends whatever the outcome.
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -73,10 +75,22 @@ def locked(out: Path, option: str = "--out") -> Iterator[Path]:
     else:  # pragma: no cover - another process took the stale lock in between
         raise ConfigError(f"{option} {out}: another replicate command is writing it; choose another path")
     try:
+        put_back(out)
         yield out
     finally:
         if holder(lock) == os.getpid():
             lock.unlink(missing_ok=True)
+
+
+def put_back(out: Path) -> None:
+    """Put back a result that a command killed while replacing it (``kill -9``: no ``finally`` ran) had moved
+    aside, in place of whatever that command left; called with the lock held, so no command is writing it."""
+    aside = out.parent / f".{out.name}.replaced"
+    if aside.exists():
+        if out.exists():
+            remove(out)
+        aside.rename(out)
+        warnings.warn(f"{out}: put back the result that a killed command had moved aside to replace it", stacklevel=3)
 
 
 @contextmanager
@@ -85,10 +99,7 @@ def replacing(out: Path) -> Iterator[Path]:
     back in place of whatever the block left when it fails or is interrupted."""
     out = Path(out)
     aside = out.parent / f".{out.name}.replaced"
-    if aside.exists():  # a replacement that was itself killed: the old result is the one to keep
-        if out.exists():
-            remove(out)
-        aside.rename(out)
+    put_back(out)  # a replacement that was itself killed: the old result is the one to keep
     out.rename(aside)
     try:
         yield out

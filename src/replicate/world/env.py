@@ -57,19 +57,21 @@ class StepResult:
     pay: np.ndarray
 
 
-def start_patch(region: Polygon, side: float, at: str = "lower_left") -> Polygon:
+def start_patch(region: Polygon, side: float, at: str = "lower_left", name: str = "the region",
+                scale: float = 1.0) -> Polygon:
     """SPEC §1 start: a ``side`` × ``side`` square around the interior point nearest the lower-left corner of
     the region's box, clipped to the region (for a box region, exactly its lower-left corner square);
-    ``at="upper_right"`` puts it at the opposite corner."""
+    ``at="upper_right"`` puts it at the opposite corner. A region too narrow for it is refused naming the region
+    (``name``) and its widths in metres (``scale`` metres per simulation metre)."""
     minx, miny, maxx, maxy = region.bounds
     inner = region.buffer(-side / 2, join_style="mitre")
     if inner.is_empty:
         width = 2 * shapely.length(shapely.maximum_inscribed_circle(region, tolerance=side / 1000))  # islands too
         raise RegionError(
-            f"the region is too narrow for the buoys' {side:g} m start patch: the widest circle of open water in it "
-            f"is {width:.3g} simulation m across (area {region.area:.3g} m²). Use a wider outline; for a long, "
-            "narrow water keep its real size "
-            "with `cover --radius-m`, or set a smaller world.start_patch")
+            f"{name} is too narrow for the buoys' start patch, {side * scale:.3g} m wide: the widest circle of open "
+            f"water in it is {width * scale:.3g} m across (area {region.area * scale**2:.4g} m²). Use a wider "
+            "outline; for a long, narrow water keep its real size with `cover --radius-m`, or set a smaller "
+            "world.start_patch")
     corner = shapely.Point(minx, miny) if at == "lower_left" else shapely.Point(maxx, maxy)
     _, nearest = nearest_points(corner, inner)
     patch = box(nearest.x - side / 2, nearest.y - side / 2, nearest.x + side / 2, nearest.y + side / 2)
@@ -153,7 +155,8 @@ class CoverageEnv:
         if observation == "local":  # the shore's edges and the rays' directions, once
             self.shore_edges = sensors.shore_segments(region.polygon)
             self.ray_directions = sensors.ray_directions(self.sensor_config.rays)
-        self.patch = start_patch(region.polygon, world.start_patch)  # first: it refuses a region too narrow
+        # first: it refuses a region too narrow, naming it
+        self.patch = start_patch(region.polygon, world.start_patch, name=region.name, scale=region.scale)
         self._geometry = None  # the fast path's tables: built below for a reward, on first use without one
         self.start = "corner"  # where ``reset`` releases the buoys (``STARTS``)
         self.alive: np.ndarray | None = None  # [E, N] bool once a buoy is lost (``lose``); None: all alive
