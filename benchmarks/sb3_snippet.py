@@ -63,6 +63,8 @@ def main() -> None:
         seconds[budget] = time.perf_counter() - start
         rows[f"PPO, {budget:,} steps"] = episode_coverage(
             kwargs, lambda o, rng, m=model: m.predict(o, deterministic=True)[0], seeds)
+        rows[f"PPO sampled, {budget:,} steps"] = episode_coverage(  # its Gaussian's draws, not its mean
+            kwargs, lambda o, rng, m=model: np.clip(m.predict(o, deterministic=False)[0], -1, 1), seeds)
     for name, cov in rows.items():
         print(f"{name:>24}: coverage {cov.mean():.3f} ± {cov.std(ddof=1) / np.sqrt(len(cov)):.3f} "
               f"(over {len(cov)} episodes)")

@@ -152,6 +152,17 @@ def test_starts_losses_and_a_current_pass_the_api_and_seed_tests():
     for _ in range(10):
         again.step({a: np.zeros(2) for a in again.agents})
     assert (again.core.alive == env.core.alive).all()  # the losses come from the reset's seed
+    kept = CoverageParallelEnv("bedok", observation="local", shore="wall", episode_length=20, lose=3,
+                               keep_lost=True)  # a fixed agent set, as vector envs need
+    parallel_api_test(kept, num_cycles=40)
+    kept.reset(seed=3)
+    for t in range(20):
+        obs, rewards, terms, truncs, infos = kept.step({a: np.ones(2) for a in kept.agents})
+        lost = [a for a in infos if infos[a].get("lost")]
+        assert len(obs) == 9 and not any(terms.values()) and len(lost) == (3 if t >= 9 else 0)
+        assert not any(obs[a].any() for a in lost)  # silent from the loss on
+        assert t == 9 or all(rewards[a] == 0.0 for a in lost)  # paid for the step they were lost after
+    assert kept.agents == [] and all(truncs.values())
     with pytest.raises(ValueError, match="lose must be between 0 and n_agents - 1"):
         CoverageParallelEnv("square", lose=9)
     with pytest.raises(ValueError, match="lose needs an episode of at least 2 steps"):

@@ -41,7 +41,10 @@ class CoverageParallelEnv(ParallelEnv):
     ``reward`` is ``"sw"``, ``"cr"`` or ``None``; ``shore="wall"`` keeps every buoy in the water. The events of
     ``replicate evaluate --policy``: ``start`` (``"corner"``, ``"opposite"`` or ``"random"``), ``lose`` buoys lost
     after half the episode (drawn from the reset's seed; they terminate and leave ``agents``), and a uniform
-    ``current`` (vx, vy) in simulation m/s. Infos carry the
+    ``current`` (vx, vy) in simulation m/s; ``keep_lost=True`` keeps a lost buoy among the agents to the end of
+    the episode, observing zeros, paid nothing, its actions ignored and ``infos[a]["lost"]`` set (what a vector
+    env of a fixed agent set needs: SuperSuit's ``pettingzoo_env_to_vec_env_v1`` refuses agents that leave, and
+    its ``black_death_v3`` never ends an episode that truncates). Infos carry the
     coverage fraction (fast path) from the reset on, so wrappers that build their specs from ``reset()`` see it.
     Observations and the ``state()`` are bounded: no buoy can get further than T steps at top speed from the
     region (or past the geofence).
@@ -71,6 +74,7 @@ class CoverageParallelEnv(ParallelEnv):
         params: Params | None = None,
         radius_m: float | None = None,
         speed_ms: float = BOB_SPEED,
+        keep_lost: bool = False,
     ):
         params = params or load_params(packaged("params.yaml"))
         self.units = None
@@ -92,7 +96,7 @@ class CoverageParallelEnv(ParallelEnv):
             raise ValueError(f"lose must be between 0 and n_agents - 1 ({world.n_agents - 1}), got {lose}")
         if lose and world.episode_length < 2:
             raise ValueError("lose needs an episode of at least 2 steps: the buoys are lost after half of it")
-        self.start, self.lose = start, int(lose)
+        self.start, self.lose, self.keep_lost = start, int(lose), keep_lost
         if current is not None:
             self.core.set_current(Current.uniform(np.asarray([current], dtype=float)))
         self._loss_rng = np.random.default_rng()
@@ -135,7 +139,8 @@ class CoverageParallelEnv(ParallelEnv):
             if a in actions:
                 action[0, i] = np.asarray(actions[a], dtype=float)
         result = self.core.step(action)
-        rewards = {a: float(result.pay[0, i]) for i, a in enumerate(self.possible_agents)
+        out = ~self.core.alive[0] if self.core.alive is not None else np.zeros(self.core.n_agents, bool)  # lost
+        rewards = {a: 0.0 if out[i] else float(result.pay[0, i]) for i, a in enumerate(self.possible_agents)
                    if a in self.agents}
         truncated = bool(result.done)
         union = result.union_area[0]  # measured by the CR reward; NaN otherwise
@@ -146,13 +151,18 @@ class CoverageParallelEnv(ParallelEnv):
             self.core.lose(self.lose, self._loss_rng)
             result = dataclasses.replace(result, obs=self.core.observe())  # the lost are no longer heard
             lost = [a for i, a in enumerate(self.possible_agents) if not self.core.alive[0, i]]
-            terminations.update({a: True for a in lost if a in self.agents})
+            terminations.update({a: not self.keep_lost for a in lost if a in self.agents})
             coverage = float(self.core.coverage_fraction(exact=self.units is not None)[0])  # the buoys in service
         obs = {a: o for a, o in self._obs(result.obs).items() if a in self.agents}
         truncations = {a: truncated for a in self.agents}
         info = {"coverage": coverage} if self.units is None else {"coverage": coverage,
                                                                   "time_s": self.units.steps_time_s(self.core.t)}
         infos = {a: dict(info) for a in self.agents}
+        if self.keep_lost and self.core.alive is not None:  # a lost buoy stays, silent: zeros, no reward
+            for i, a in enumerate(self.possible_agents):
+                if a in obs and not self.core.alive[0, i]:
+                    obs[a], rewards[a] = np.zeros_like(obs[a]), 0.0
+                    infos[a]["lost"] = True
         self.agents = [] if truncated else [a for a in self.agents if not terminations[a]]
         return obs, rewards, terminations, truncations, infos
 
