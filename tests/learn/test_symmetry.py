@@ -58,9 +58,10 @@ def test_a_turned_lake_turns_the_observation(regions, lake):
 
 
 def test_the_symmetric_actor_turns_its_pushes_with_the_world():
-    """μ̄(g·o) = g μ̄(o) for every g of D4 (after the tanh too); an ordinary actor does not."""
+    """μ̄(g·o) = g μ̄(o) for every g of D4 (after the tanh too), averaged over the group or run in each
+    observation's canonical frame; an ordinary actor does not."""
     obs = torch.randn(50, len(COLUMNS), generator=torch.Generator().manual_seed(0))
-    for symmetry, equivariant in (("d4", True), ("none", False)):
+    for symmetry, equivariant in (("d4", True), ("d4_frame", True), ("none", False)):
         torch.manual_seed(1)
         actor = SharedActor(len(COLUMNS), 2, 32, symmetry, COLUMNS)
         with torch.no_grad():
@@ -108,7 +109,7 @@ def test_a_symmetric_run_has_its_own_identity(params):
 
 
 @pytest.mark.parametrize("overrides, message", [
-    ({"general.learner.symmetry": "c8"}, r"general.learner.symmetry: 'c8' is not one of \['none', 'd4'\]"),
+    ({"general.learner.symmetry": "c8"}, r"general.learner.symmetry: 'c8' is not one of \['none', 'd4', 'd4_frame'\]"),
     ({"general.learner.symmetry": "d4", "general.sensors.rays": 6}, "multiple of 4"),
 ])
 def test_a_symmetry_the_sensors_cannot_carry_is_refused(overrides, message):

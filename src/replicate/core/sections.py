@@ -186,7 +186,9 @@ class RegressionConfig:
     tolerance: NonNegative
 
 
-Symmetry = Literal["none", "d4"]  # of the general actor (``symmetry``): none, or the compass's turns and mirrors
+# of the general actor (``symmetry``): none, the compass's turns and mirrors averaged over (d4), or each observation
+# turned into one canonical frame of them (d4_frame: the network runs once instead of 8 times)
+Symmetry = Literal["none", "d4", "d4_frame"]
 
 
 @section
@@ -202,7 +204,8 @@ class SharedLearnerConfig:
     actor_reg: NonNegative = 1e-3  # on the pre-tanh action, as openai/maddpg
     pool_range: NonNegative = 0.0  # m: the critic pools only the others this close (0: every other buoy of the fleet)
     pool_neighbours: Annotated[Int, In(0, MAX_AGENTS)] = 0  # the critic pools each buoy's K nearest (0: all)
-    symmetry: Symmetry = "none"  # "d4": the actor averaged over the compass's quarter turns and mirrors
+    symmetry: Symmetry = "none"  # "d4": the actor averaged over the compass's quarter turns and mirrors; "d4_frame":
+    # run once in each observation's canonical frame of them
     OPTIONAL: ClassVar[tuple[str, ...]] = ("symmetry",)  # left out of a run's identity at their default (as sensors')
 
 

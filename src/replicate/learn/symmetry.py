@@ -93,6 +93,29 @@ class CompassSymmetric(nn.Module):
         return back.mean(dim=-2)
 
 
+class CompassCanonical(CompassSymmetric):
+    """f̂(o) = g*⁻¹ f(g*·o) with g* = argmax_g w·(g·o) for a fixed generic direction w in observation space: each
+    observation is turned and mirrored into one canonical frame, the network runs once (not |G| times), and its
+    action is turned back. Equivariant like the average: g* of g·o is g*(o) g⁻¹, so g·o has the same canonical
+    frame and f̂(g·o) = g f̂(o), wherever the argmax is unique (ties need w·(g·o) equal for two g: a set of
+    measure zero, e.g. the all-zero observation). f̂ jumps where the argmax changes, which the average does not."""
+
+    def __init__(self, net: nn.Module, columns: list[str], group: np.ndarray, seed: int = 0):
+        super().__init__(net, columns, group)
+        w = torch.as_tensor(np.random.default_rng(seed).normal(size=len(columns)), dtype=torch.float32)
+        # w·(g·o) = Σ_c w[c] sign_g[c] o[index_g[c]] = o · score[g]: one [D, G] matmul scores every frame
+        score = torch.zeros(len(columns), len(group))
+        for k in range(len(group)):
+            score[:, k].index_add_(0, self.obs_index[k], w * self.obs_sign[k])
+        self.register_buffer("score", score)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        best = (obs @ self.score).argmax(dim=-1)  # [...]: the canonical frame g* of each observation
+        seen = torch.gather(obs, -1, self.obs_index[best]) * self.obs_sign[best]  # g*·o [..., D]
+        pre = self.net(seen)  # [..., 2]
+        return torch.gather(pre, -1, self.act_index[best]) * self.act_sign[best]  # g*⁻¹ of it
+
+
 def symmetric(net: nn.Module, columns: list[str], group: str) -> nn.Module:
     """``net`` averaged over ``group`` (``core.sections.Symmetry``: "none" leaves it as it is) for observations with
     ``columns``."""
@@ -102,4 +125,8 @@ def symmetric(net: nn.Module, columns: list[str], group: str) -> nn.Module:
         if not columns:
             raise ValueError("a symmetric actor needs its observation's column names (sensors.columns)")
         return CompassSymmetric(net, columns, d4())
+    if group == "d4_frame":
+        if not columns:
+            raise ValueError("a symmetric actor needs its observation's column names (sensors.columns)")
+        return CompassCanonical(net, columns, d4())
     raise ValueError(f"unknown symmetry group {group!r}: one of {', '.join(typing.get_args(Symmetry))}")
