@@ -36,7 +36,7 @@ $(BENCH_STAMP): $(STAMP) benchmarks/bench.lock
 	$(PY) -m pip install --quiet --disable-pip-version-check -c environment.lock -r benchmarks/bench.lock
 	touch $(BENCH_STAMP)
 
-# `make bench ARGS="--only 3 5"` runs some sections only.
+# `make bench ARGS="--only 3 5"` runs some sections only; `make bench ARGS=--quick` every figure within 15 minutes.
 bench: $(BENCH_STAMP)
 	$(PY) benchmarks/bench.py $(ARGS)
 

@@ -8,10 +8,8 @@
    10,000-episode run (the budget `tuned` was designed for: 180 s on one core): for a run alone, and per run of a
    cell's seeds stacked in one process with a second such process beside it, as the pipeline's `train` stage
    runs them (two processes share the caches and the memory bus: each runs slower than alone), with the ratio.
-   From the side-by-side figures, the projected `train` stage (every run of params.yaml's matrix and ablation),
-   the same with every update at its matmul floor, and the whole forced `dvc repro`: that `train` plus the other
-   stages' times as the last forced repro from scratch measured them (``benchmarks/from_scratch.json``, written by
-   ``--record-from-scratch``), against its 45-minute budget.
+   From the side-by-side figures, the projected `train` stage (every run of params.yaml's matrix and ablation)
+   and the same with every update at its matmul floor; section 8 adds the other stages.
 2. One update of all 9 agents, per configuration: the batched MADDPG (hand-written gradients) against the same
    batched update through autograd (the update before its gradients were written out) and the per-agent loop
    (``tests/learn/loop_maddpg.py``), as ratios.
@@ -28,9 +26,18 @@
    ``make bench`` installs).
 6. One update of the general policy's learner (``shared_maddpg``: the shared actor and the pooled critic) on a
    minibatch shaped as its training samples it, against its matmul floor and against the same update with its two
-   losses compiled by ``torch.compile`` (inductor), and where its time goes.
+   losses compiled by ``torch.compile`` (inductor), and where its time goes; then a general seed's projected CPU
+   (batches timed across its training worlds, scaled to ``general.episodes``) with the actor as trained and with
+   ``symmetry: d4_frame``, against the 450 s target.
 7. What a field team waits for (``benchmarks/field_bench.py``): `replicate --help`'s start-up, `act --stream`'s
-   latency per step, and `replicate plan` on a real lake.
+   latency per step, `replicate plan` on a real lake, and `replicate evaluate --policy` on each real lake (wall
+   time and peak memory against 30 s and 1 GB).
+8. The pipeline from scratch, stage by stage: ``train`` as section 1 projects it, the general seeds' stages from
+   section 6's seed, the others as the last measured forced ``dvc repro`` (``benchmarks/from_scratch.json``), in
+   all and with 8 reported general seeds, against 150 minutes.
+
+``--quick`` (``make bench ARGS=--quick``) prints every figure but section 4's from shorter timings (200 episodes,
+fewer batches), within 15 minutes on two cores; the run's own duration is its last line.
 
 Everything runs on one thread (``torch.set_num_threads(1)``), the budget of one core of the 2-core machine, and
 sections 0-3 with the allocator setting of the pipeline's training processes.
@@ -40,6 +47,8 @@ sections 0-3 with the allocator setting of the pipeline's training processes.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
 import sys
 import tempfile
 import time
@@ -52,6 +61,7 @@ import torch
 from torch import nn
 
 from replicate.core.params import load_params, run_config
+from replicate.learn.general_train import GeneralTrainer
 from replicate.learn.maddpg import MADDPG, clip_grad_per_agent, soft_update
 from replicate.learn.process import hold_freed_memory
 from replicate.learn.replay import FleetBatch, ReplayBuffer
@@ -502,7 +512,40 @@ def general_update_section(params, floors: dict[str, float]) -> None:
         f"{k} {ms:.2f} ms" + (f" at {gf:.1f} GFLOPS" if gf == gf else "") for k, (ms, gf) in sorted(parts.items())))
 
 
-def training_section(params, square, floors: dict[str, float], episodes: int) -> None:
+def general_seed_cpu(params, symmetry: str, batches: int) -> float:
+    """Projected CPU seconds of one general seed (``general.episodes``) with the actor's ``symmetry``: the trainer's
+    set-up, ``batches`` batches after the first (which fills the replay to ``learning_starts``), spread over the
+    training worlds, and one validation, each in process CPU, scaled to the seed's batches and validations."""
+    gc = dataclasses.replace(params.general, learner=dataclasses.replace(params.general.learner, symmetry=symmetry))
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.process_time()
+        trainer = GeneralTrainer(params, 0, Path(tmp) / "g", False, gc)
+        setup = time.process_time() - start
+        worlds = trainer.worlds
+        trainer.play(worlds[0], gc.noise_start)
+        start = time.process_time()
+        for b in range(batches):
+            trainer.play(worlds[(1 + b * len(worlds) // batches) % len(worlds)], gc.noise_start)
+        per_batch = (time.process_time() - start) / batches
+        start = time.process_time()
+        trainer.validate(gc.n_envs)
+        per_validation = time.process_time() - start
+    total = gc.episodes // gc.n_envs
+    return setup + per_batch * total + per_validation * (total // len(worlds) + 1)
+
+
+def general_seed_section(params, batches: int) -> dict[str, float]:
+    """Section 6's second part: a general seed's projected CPU, as trained and with ``d4_frame`` → {symmetry: s}."""
+    symmetry = params.general.learner.symmetry
+    seconds = {s: general_seed_cpu(params, s, batches) for s in dict.fromkeys((symmetry, "d4_frame"))}
+    for s, cpu in seconds.items():
+        print(f"a general seed ({params.general.episodes:,} episodes, symmetry {s}): projected {cpu:.0f} s of one "
+              f"core ({batches} batches timed across the training worlds; target <= 450 s: {cpu / 450:.2f}x)"
+              + (f"; {cpu / seconds[symmetry]:.2f}x the {symmetry} actor's" if s != symmetry else ""))
+    return seconds
+
+
+def training_section(params, square, floors: dict[str, float], episodes: int) -> float:
     print("== 1. training time per run, square (one thread): a run alone, and a cell's seeds stacked in one process "
           "with a second such process beside it, as the pipeline's `train` stage runs them ==")
     splits = {}
@@ -523,20 +566,40 @@ def training_section(params, square, floors: dict[str, float], episodes: int) ->
     runs, projected, at_floor = train_stage_projection(params, splits, floors)
     print(f"pipeline `train` stage, {runs} runs, two processes at a time: projected {projected / 60:.0f} min at "
           f"these speeds; {at_floor / 60:.0f} min if every update ran at its matmul floor")
+    return projected
+
+
+def pipeline_section(params, train_s: float | None, seed_cpu: float | None, workers: int = 2) -> None:
+    """The whole forced ``dvc repro`` from scratch, stage by stage: ``train`` and the general seeds' stages as
+    projected in this run (``None``: not run, the last measured), the others as the last measured forced repro
+    (``FROM_SCRATCH``) took them; with the reported general seeds as they are and with 8 of them."""
+    print("== 8. the pipeline from scratch, stage by stage (two processes at a time) ==")
     if not FROM_SCRATCH.exists():
-        print(f"no measured forced `dvc repro` to add the other stages from ({FROM_SCRATCH.name}: "
+        print(f"no measured forced `dvc repro` to read the other stages from ({FROM_SCRATCH.name}: "
               "`bench.py --record-from-scratch CLONE` after one)")
         return
     import json
 
     record = json.loads(FROM_SCRATCH.read_text())
-    others = {k: v for k, v in record["stage_seconds"].items() if k != "train"}
-    rest = sum(others.values())
-    print(f"whole forced `dvc repro`: projected {(projected + rest) / 60:.0f} min ({(at_floor + rest) / 60:.0f} at "
-          f"the floor) = `train` + {rest / 60:.0f} min of the other stages as the forced repro of {record['date']} "
-          f"(commit {record['commit']}) measured them (" + ", ".join(
-              f"{k} {v / 60:.1f}" for k, v in sorted(others.items(), key=lambda kv: -kv[1]) if v >= 30)
-          + "); budget 45 min")
+    stages = dict(record["stage_seconds"])
+    how = {name: f"measured {record['date']}" for name in stages}
+    if train_s is not None:
+        stages["train"], how["train"] = train_s, "projected (section 1)"
+    if seed_cpu is not None:
+        rounds = {"train_general": len(params.general.seeds), "train_yardstick": len(params.yardstick.seeds)}
+        for name, seeds in rounds.items():
+            stages[name] = math.ceil(seeds / workers) * seed_cpu
+            how[name] = f"projected: {seeds} seeds x {seed_cpu:.0f} s / {workers} processes (section 6)"
+    for name, seconds in sorted(stages.items(), key=lambda kv: -kv[1]):
+        print(f"  {name:24s} {seconds / 60:6.1f} min  ({how[name]})")
+    total = sum(stages.values())
+    extra = 0.0
+    if seed_cpu is not None and len(params.general.seeds) < 8:  # the evaluation asks 8 reported seeds
+        extra = (math.ceil(8 / workers) - math.ceil(len(params.general.seeds) / workers)) * seed_cpu
+        extra += stages.get("evaluate_general", 0.0) * (8 / len(params.general.seeds) - 1)
+    print(f"whole forced `dvc repro`: {total / 60:.0f} min; with 8 reported general seeds (their training, and the "
+          f"suite's evaluation scaled by seeds) {(total + extra) / 60:.0f} min; target <= 150 min "
+          f"({(total + extra) / 9000:.2f}x)")
 
 
 def update_section(params) -> None:
@@ -608,52 +671,62 @@ def full_run(params, square) -> None:
           f"{summary['updates']} updates)")
 
 
-SECTIONS = (0, 1, 2, 3, 4, 5, 6, 7)
+SECTIONS = (0, 1, 2, 3, 4, 5, 6, 7, 8)
+QUICK = (0, 1, 2, 3, 5, 6, 7, 8)  # --quick leaves out the allocator's fresh processes (4) and times fewer episodes
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--episodes", type=int, default=1000, help="episodes of the timed training runs")
-    parser.add_argument("--only", type=int, nargs="+", choices=SECTIONS, default=SECTIONS,
+    parser.add_argument("--episodes", type=int, default=None,
+                        help="episodes of the timed training runs (default 1,000; 200 with --quick)")
+    parser.add_argument("--only", type=int, nargs="+", choices=SECTIONS, default=None,
                         help="the sections to run (default: all; 1 and 6 need 0's floors and run it too)")
+    parser.add_argument("--quick", action="store_true",
+                        help="every figure but section 4's, from shorter timings: within 15 minutes on two cores")
     parser.add_argument("--full", action="store_true", help="also train the full 10,000-episode CR run")
     parser.add_argument("--allocator-probe", choices=("default", "held"), help=argparse.SUPPRESS)
     parser.add_argument("--split-probe", nargs=3, metavar=("CONFIG", "METHOD", "RUNS"), help=argparse.SUPPRESS)
     parser.add_argument("--record-from-scratch", metavar="CLONE",
                         help=f"after a forced `dvc repro` from scratch in CLONE, write its stage times to "
-                             f"benchmarks/{FROM_SCRATCH.name} (section 1 adds them to its projection) and stop")
+                             f"benchmarks/{FROM_SCRATCH.name} (section 8 reads them) and stop")
     args = parser.parse_args(argv)
+    episodes = args.episodes or (200 if args.quick else 1000)
     if args.record_from_scratch:
         print(record_from_scratch(args.record_from_scratch))
         return 0
     if args.split_probe:
         config, method, runs = args.split_probe
-        split_probe(config, method, int(runs), args.episodes)
+        split_probe(config, method, int(runs), episodes)
         return 0
     if args.allocator_probe:
-        allocator_probe(args.allocator_probe, args.episodes)
+        allocator_probe(args.allocator_probe, episodes)
         return 0
+    started = time.perf_counter()
     hold_freed_memory()  # as the pipeline's training processes (section 4 measures it)
     params = load_params("params.yaml")
     square = make_region("square", params.regions["square"], params.world.region_area)
-    only = set(args.only)
+    only = set(args.only or (QUICK if args.quick else SECTIONS))
     floors = machine_section(params) if only & {0, 1, 6} else {}
-    if 1 in only:
-        training_section(params, square, floors, args.episodes)
+    train_s = training_section(params, square, floors, episodes) if 1 in only else None
     if 2 in only:
         update_section(params)
     if 3 in only:
         environment_section(params, square)
     if 4 in only:
-        allocator_section(args.episodes)
+        allocator_section(episodes)
     if 5 in only:
         benchmarl_section()
+    seed_cpu = None
     if 6 in only:
         general_update_section(params, floors)
+        seed_cpu = general_seed_section(params, 4 if args.quick else 12)[params.general.learner.symmetry]
     if 7 in only:
         field_bench.field_section()
+    if 8 in only:
+        pipeline_section(params, train_s, seed_cpu)
     if args.full:
         full_run(params, square)
+    print(f"make bench{' --quick' if args.quick else ''}: {(time.perf_counter() - started) / 60:.1f} min")
     return 0
 
 

@@ -1,13 +1,14 @@
 """Section 7 of `make bench`: what a field team waits for. The start-up of `replicate --help` (best of 5 fresh
 processes), the per-step latency of `replicate act --stream --real` once it has started (a general policy exported
 for 25 m buoys at 1 m/s, 9 buoys, 2,000 steps through a pipe, one step answered before the next is sent), and the
-wall time of `replicate plan` on Lake Karaguz (9 buoys of 25 m at 1 m/s, the whole default mission) and of
-`replicate evaluate --policy` on Mae Kuang reservoir (1,712 vertices: 100 episodes of the policy, naive swarming and
-Lloyd, and the best layout; the target is 30 s)."""
+wall time and peak memory of `replicate plan` on Lake Karaguz (9 buoys of 25 m at 1 m/s, the whole default mission)
+and of `replicate evaluate --policy` on each real lake of `data/lakes/` (100 episodes of the policy, naive swarming
+and Lloyd, the best layout, and the episode written for a GIS; the targets are 30 s and 1 GB)."""
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -55,19 +56,29 @@ def stream_latency(policy: Path, steps: int = 2000, buoys: int = 9) -> tuple[flo
     return first, per_step
 
 
-def plan_seconds(out: Path) -> float:
-    start = time.perf_counter()
-    subprocess.run([*REPLICATE, "plan", "--region", "data/lakes/lake_karaguz.geojson", "--buoys", "9", "--radius-m",
-                    "25", "--speed-ms", "1.0", "--out", str(out)], check=True, capture_output=True, cwd=ROOT)
-    return time.perf_counter() - start
+LAKES = ("mae_kuang_reservoir", "lake_silach", "lake_karaguz")  # data/lakes/: 1,712, 1,236 and 467 vertices
 
 
-def evaluate_seconds(out: Path) -> float:
+def timed(argv: list[str]) -> tuple[float, float]:
+    """(wall seconds, peak resident MB of its largest process) of one `replicate` command."""
     start = time.perf_counter()
-    subprocess.run([*REPLICATE, "evaluate", "--policy", "src/replicate/defaults/general.pt", "--region",
-                    "data/lakes/mae_kuang_reservoir.geojson", "--out", str(out)], check=True, capture_output=True,
-                   cwd=ROOT)
-    return time.perf_counter() - start
+    proc = subprocess.Popen([*REPLICATE, *argv], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(proc.pid, 0)
+    seconds = time.perf_counter() - start
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode:
+        raise RuntimeError(f"replicate {' '.join(argv)}: exit {proc.returncode}: {proc.stderr.read().decode()}")
+    return seconds, usage.ru_maxrss / 1024
+
+
+def plan_seconds(out: Path) -> tuple[float, float]:
+    return timed(["plan", "--region", "data/lakes/lake_karaguz.geojson", "--buoys", "9", "--radius-m", "25",
+                  "--speed-ms", "1.0", "--out", str(out)])
+
+
+def evaluate_seconds(lake: str, out: Path) -> tuple[float, float]:
+    return timed(["evaluate", "--policy", "src/replicate/defaults/general.pt", "--region",
+                  f"data/lakes/{lake}.geojson", "--out", str(out)])
 
 
 def field_section() -> None:
@@ -80,8 +91,10 @@ def field_section() -> None:
         first, per_step = stream_latency(policy)
         print(f"`replicate act --stream --real` (general policy, 9 buoys): first answer after {first:.2f} s, then "
               f"{per_step * 1e3:.3f} ms per step (target <= 1 ms: {per_step / 1e-3:.2f}x of it)")
-        print(f"`replicate plan` on Lake Karaguz (9 buoys, 25 m, 1 m/s, the whole mission): "
-              f"{plan_seconds(Path(tmp) / 'plan'):.1f} s")
-        seconds = evaluate_seconds(Path(tmp) / "evaluation.json")
-        print(f"`replicate evaluate --policy` on Mae Kuang reservoir: {seconds:.1f} s (target <= 30 s: "
-              f"{seconds / 30:.2f}x of it)")
+        seconds, peak = plan_seconds(Path(tmp) / "plan")
+        print(f"`replicate plan` on Lake Karaguz (9 buoys, 25 m, 1 m/s, the whole mission): {seconds:.1f} s, "
+              f"peak {peak:.0f} MB")
+        for lake in LAKES:
+            seconds, peak = evaluate_seconds(lake, Path(tmp) / f"{lake}.json")
+            print(f"`replicate evaluate --policy` on {lake}: {seconds:.1f} s (target <= 30 s: {seconds / 30:.2f}x of "
+                  f"it), peak {peak:.0f} MB (target <= 1 GB)")

@@ -63,7 +63,7 @@ def plan_map(p: Plan, path) -> Path:
     cx.set_ylabel("share of the lake covered")
     cx.legend(fontsize=8)
     cx.grid(alpha=0.3)
-    fig.suptitle(f"{region.name}: {s['buoys']} buoys of {s['radius_m']:g} m at {s['top_speed_ms']:g} m/s, "
+    fig.suptitle(f"{region.name}: {s['buoys']} buoys of {s['radius_m']:.4g} m at {s['top_speed_ms']:g} m/s, "
                  f"control period {s['control_period_s']:.3g} s", fontsize=11)
     fig.text(0.01, -0.02, f"Outline: {region.attribution or region.source}", fontsize=7)
     return save(fig, path)
