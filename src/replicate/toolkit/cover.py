@@ -1,5 +1,6 @@
-"""Cover any waterbody: outline (file or OSM place) → UTM → region → a policy → metrics, spread plot, and the
-comparison with the baselines (``replicate cover``).
+"""Cover any waterbody: outline (file or OSM place) → UTM → region → a policy → metrics, the comparison with the
+baselines, and one evaluation episode for a GIS (``toolkit.field``: ``episode.gpkg``, GeoJSON, waypoints, the map
+and the GIF) (``replicate cover``).
 
 Two ways to get the policy:
 
@@ -150,8 +151,8 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
     """The general policy on the waterbody in ``path``: zero-shot, or fine-tuned there first for ``finetune``
     episodes (``general_train`` on this one lake, from the policy's weights, keeping the best-validated actor,
     which is the starting one unless training beats it; written to ``out/finetune`` and ``out/policy.pt``).
-    Evaluated from the corner patch with its baselines (``evaluate.evaluate_policy``); ``out/spread.png`` and
-    ``out/summary.json``."""
+    Evaluated from the corner patch with its baselines (``evaluate.evaluate_policy``); ``out/summary.json`` and
+    its first episode beside Lloyd's and decentralised Lloyd's as ``out/episode.*`` (``toolkit.field``)."""
 
     region, params = scaled_setup(path, params, n_agents, radius_m)
     n = params.world.n_agents

@@ -119,7 +119,7 @@ def plan_on(region: Region, params: Params, mission: Mission, policy: Path, star
               *(flight.fly(name, rival, sensors if name == "decentralised_lloyd" else None)
                 for name, rival in rivals.items()))
     best_xy, best = best_layout_once(region.polygon, mission.buoys - starts.lose, params.coverage.radius,
-                                params.coverage.edges)
+                                     params.coverage.edges)
     patch = patch if patch is not None else start_patch(region.polygon, params.world.start_patch)
     return Plan(region, units, mission, params, sensors, tracks, best_xy, best, patch)
 
