@@ -162,7 +162,8 @@ def test_cover_a_lake_the_repo_does_not_ship(tmp_path):
     lake = Polygon([(6.56, 46.50), (6.575, 46.502), (6.58, 46.51), (6.565, 46.512), (6.555, 46.505)])
     gpd.GeoDataFrame({"name": ["test lake"]}, geometry=[lake], crs="EPSG:4326").to_file(tmp_path / "lake.geojson")
     proc = cli(*SMALL, "cover", "--method", "cr", "--region", str(tmp_path / "lake.geojson"), "--episodes", "20",
-               "--n-agents", "5", "--radius-m", "150", "--out", str(tmp_path / "out"), "--no-progress",
+               "--n-agents", "5", "--radius-m", "150", "--speed-ms", "0.5", "--out", str(tmp_path / "out"),
+               "--no-progress",
                stdout=subprocess.PIPE, text=True)
     assert proc.wait(timeout=600) == 0
     text = proc.stdout.read()
@@ -178,6 +179,8 @@ def test_cover_a_lake_the_repo_does_not_ship(tmp_path):
     layers, episode = check_field_files(tmp_path / "out", "episode", 1e-3, walled=False)  # to 1e-4 sim m
     assert set(layers["tracks"].method) == {"CR-MARL (tuned)", "lloyd"}
     assert episode["steps"] == summary["episode_length"]  # Lloyd's converging run cut to the policy's minutes
+    assert summary["top_speed_ms"] == episode["top_speed_ms"] == 0.5  # buoys of 0.5 m/s: 150 m / 0.5 m/s periods
+    assert summary["control_period_s"] == pytest.approx(150 / 0.5 * 2 * np.sqrt(2) / 0.5 * 0.1)
     assert episode["methods"]["lloyd"]["coverage"] <= episode["best_layout"]["coverage"] + 1e-9
     (tmp_path / "lake.geojson").unlink()  # the run folder records its region: export needs nothing else
     export = cli("export", str(tmp_path / "out" / "run"), "--out", str(tmp_path / "lake.pt"), stderr=subprocess.PIPE,

@@ -83,7 +83,7 @@ def outline_file(region: str | None, place: str | None, name: str | None, workdi
 
 def cover(
     path: Path, params: Params, out: Path, episodes: int, seed: int = 0, n_agents: int | None = None,
-    radius_m: float | None = None, config: str = "tuned", progress: bool = True,
+    radius_m: float | None = None, config: str = "tuned", progress: bool = True, speed_ms: float = BOB_SPEED,
 ) -> dict:
     """Train CR-MARL on the waterbody in ``path`` and compare its coverage with the converged Lloyd layout."""
     region, params = scaled_setup(path, params, n_agents, radius_m)
@@ -95,10 +95,10 @@ def cover(
     method = evaluate_run(out / "run", params, region, progress=progress)
     lloyd = evaluate_baseline("lloyd_converged", params, region, config, progress=progress)
     p = plan_of(region, params, {f"CR-MARL ({config})": np.array(method["example"]["trajectory"]),
-                                 "lloyd": np.array(lloyd["example"]["trajectory"])})  # over the same minutes
+                                 "lloyd": np.array(lloyd["example"]["trajectory"])}, speed_ms)  # one clock
     write_mission(p, out, "episode", progress)
     summary = {
-        **deployment(region, params, params.world.n_agents, params.world.episode_length),
+        **deployment(region, params, params.world.n_agents, params.world.episode_length, speed_ms),
         "episodes": episodes,
         "coverage": method["coverage"],
         "lloyd_coverage": lloyd["coverage"],
@@ -147,7 +147,8 @@ def finetuned(policy: Path, module, meta: dict, params: Params, region, steps: i
 
 
 def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune: int = 0, seed: int = 0,
-                  n_agents: int | None = None, radius_m: float | None = None, progress: bool = True) -> dict:
+                  n_agents: int | None = None, radius_m: float | None = None, progress: bool = True,
+                  speed_ms: float = BOB_SPEED) -> dict:
     """The general policy on the waterbody in ``path``: zero-shot, or fine-tuned there first for ``finetune``
     episodes (``general_train`` on this one lake, from the policy's weights, keeping the best-validated actor,
     which is the starting one unless training beats it; written to ``out/finetune`` and ``out/policy.pt``).
@@ -162,12 +163,12 @@ def cover_general(path: Path, params: Params, out: Path, policy: Path, finetune:
         trained = finetuned(policy, module, meta, params, region, steps, finetune, seed, out, progress)
         policy = out / "policy.pt"
     result = evaluate_policy(policy, region, params, n, "corner", progress=progress, geodesic=False)
-    mission = Mission(n, params.coverage.radius * region.scale, seed=params.evaluate.seed)
+    mission = Mission(n, params.coverage.radius * region.scale, speed_ms, seed=params.evaluate.seed)
     write_mission(plan_on(region, params, mission, policy), out, "episode", progress)
     lloyd = lloyd_name(result["baselines"])
     lloyd_coverage = result["baselines"][lloyd]["coverage"]
     summary = {
-        **deployment(region, params, n, steps),
+        **deployment(region, params, n, steps, speed_ms),
         "policy": str(policy),
         "finetune_episodes": trained["general"]["episodes"] if finetune else 0,
         "coverage": result["coverage"],

@@ -41,6 +41,9 @@ def add(sub, verb: dict, regions: str) -> None:
     c.add_argument("--n-agents", type=int, default=None, help="number of buoys, 1 to 200 (default: world.n_agents)")
     c.add_argument("--radius-m", type=float, default=None,
                    help="real scale: coverage radius in metres (default: the paper's 9 m² scale)")
+    c.add_argument("--speed-ms", type=float, default=1.0, metavar="M_PER_S",
+                   help="the buoys' top speed in m/s (default 1.0, the paper's BoB): the control period, the mission's "
+                        "minutes and the timestamps of the tracks")
     c.add_argument("--out", default="my-runs/cover", help="output folder")
     c.add_argument("--force", action="store_true", help="replace what --out holds (the folder is cleared first)")
     c.set_defaults(func=run)
@@ -110,6 +113,7 @@ def check_cover_args(args: argparse.Namespace, params: Params) -> None:
             raise ConfigError(f"--episodes must be at least 1, got {args.episodes}")
     if args.radius_m is not None:
         positive(args.radius_m, "--radius-m")
+    positive(args.speed_ms, "--speed-ms")
     if args.n_agents is not None and not 1 <= args.n_agents <= MAX_AGENTS:
         raise ConfigError(f"--n-agents must be between 1 and {MAX_AGENTS}, got {args.n_agents}")
     if args.region is not None:
@@ -162,6 +166,6 @@ def cover_into(args: argparse.Namespace, params: Params, out: Path, tempfile) ->
             path = out / "outline.geojson"
         if args.method == "general":
             return cover_general(path, params, out, args.policy, args.finetune, args.seed, args.n_agents,
-                                 args.radius_m, not args.no_progress)
+                                 args.radius_m, not args.no_progress, args.speed_ms)
         return cover(path, params, out, args.episodes, args.seed, args.n_agents, args.radius_m, args.config,
-                     not args.no_progress)
+                     not args.no_progress, args.speed_ms)
