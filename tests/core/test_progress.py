@@ -41,3 +41,18 @@ def test_a_command_without_a_terminal_logs_its_steps(replicate, caplog, tmp_path
     code, err = replicate("--set", "evaluate.episodes=2", "evaluate", "--no-progress", "--baseline", "lloyd",
                           "--region", "square", "--out", str(tmp_path / "quiet.json"))
     assert code == 0 and not caplog.records  # asked for none
+
+
+def worker_lines(_job) -> bool:
+    return progress._lines
+
+
+def test_worker_processes_leave_the_log_to_the_count_of_jobs(caplog):
+    """`compare` and the pipeline's stages run lakes in worker processes: their phases would flood a log (thousands
+    of lines); only the jobs' count is logged."""
+    from replicate.core.executor import map_jobs
+
+    progress.log_lines(True)
+    with caplog.at_level(logging.INFO, logger="replicate.progress"):
+        assert map_jobs(worker_lines, range(3), workers=2) == [False] * 3
+    assert [r.getMessage() for r in caplog.records][-1] == "jobs: 3/3 jobs (done), 0 s"

@@ -18,6 +18,7 @@ import os
 from collections.abc import Callable, Iterable
 
 from replicate.core.progress import bar as progress_bar
+from replicate.core.progress import log_lines
 from replicate.core.schema import ConfigError
 
 log = logging.getLogger(__name__)
@@ -44,7 +45,7 @@ def map_jobs(fn: Callable, jobs: Iterable, executor: str = "local", workers: int
     ``progress`` names a bar of the jobs done (a command's; the pipeline's stages show none). An error or Ctrl-C
     stops the workers at once: the local pool is terminated, Ray's tasks are cancelled."""
     jobs = list(jobs)
-    bar = progress_bar(progress is not None, total=len(jobs), desc=progress, unit="job", leave=False)
+    bar = progress_bar(progress is not None, total=len(jobs), desc=progress or "jobs", unit="job", leave=False)
     with bar:
         if check_executor(executor) == "ray":
             ray = ray_runtime()
@@ -60,7 +61,8 @@ def map_jobs(fn: Callable, jobs: Iterable, executor: str = "local", workers: int
                 for ref in refs:
                     ray.cancel(ref, force=True)
                 raise
-        pool = multiprocessing.Pool(max(1, workers))
+        # the workers' own phases stay quiet in a log: the jobs' count here speaks for them
+        pool = multiprocessing.Pool(max(1, workers), initializer=log_lines, initargs=(False,))
         try:
             results = []
             for result in pool.imap(fn, jobs):
