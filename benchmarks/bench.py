@@ -36,7 +36,7 @@
    section 6's seed, the others as the last measured forced ``dvc repro`` (``benchmarks/from_scratch.json``), in
    all and with 8 reported general seeds, against 150 minutes.
 
-``--quick`` (``make bench ARGS=--quick``) prints every figure but section 4's from shorter timings (200 episodes,
+``--quick`` (``make bench ARGS=--quick``) prints every figure but section 4's from shorter timings (600 episodes,
 fewer batches), within 15 minutes on two cores; the run's own duration is its last line.
 
 Everything runs on one thread (``torch.set_num_threads(1)``), the budget of one core of the 2-core machine, and
@@ -540,7 +540,8 @@ def general_seed_section(params, batches: int) -> dict[str, float]:
     seconds = {s: general_seed_cpu(params, s, batches) for s in dict.fromkeys((symmetry, "d4_frame"))}
     for s, cpu in seconds.items():
         print(f"a general seed ({params.general.episodes:,} episodes, symmetry {s}): projected {cpu:.0f} s of one "
-              f"core ({batches} batches timed across the training worlds; target <= 450 s: {cpu / 450:.2f}x)"
+              f"core, alone ({batches} batches timed across the training worlds; two seeds side by side run slower, "
+              f"as section 1's runs; target <= 450 s: {cpu / 450:.2f}x)"
               + (f"; {cpu / seconds[symmetry]:.2f}x the {symmetry} actor's" if s != symmetry else ""))
     return seconds
 
@@ -678,7 +679,8 @@ QUICK = (0, 1, 2, 3, 5, 6, 7, 8)  # --quick leaves out the allocator's fresh pro
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--episodes", type=int, default=None,
-                        help="episodes of the timed training runs (default 1,000; 200 with --quick)")
+                        help="episodes of the timed training runs (default 1,000; 600 with --quick: updates start "
+                             "after 512, at learning_starts)")
     parser.add_argument("--only", type=int, nargs="+", choices=SECTIONS, default=None,
                         help="the sections to run (default: all; 1 and 6 need 0's floors and run it too)")
     parser.add_argument("--quick", action="store_true",
@@ -690,7 +692,7 @@ def main(argv=None) -> int:
                         help=f"after a forced `dvc repro` from scratch in CLONE, write its stage times to "
                              f"benchmarks/{FROM_SCRATCH.name} (section 8 reads them) and stop")
     args = parser.parse_args(argv)
-    episodes = args.episodes or (200 if args.quick else 1000)
+    episodes = args.episodes or (600 if args.quick else 1000)
     if args.record_from_scratch:
         print(record_from_scratch(args.record_from_scratch))
         return 0

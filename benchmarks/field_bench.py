@@ -8,7 +8,6 @@ and Lloyd, the best layout, and the episode written for a GIS; the targets are 3
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -59,16 +58,21 @@ def stream_latency(policy: Path, steps: int = 2000, buoys: int = 9) -> tuple[flo
 LAKES = ("mae_kuang_reservoir", "lake_silach", "lake_karaguz")  # data/lakes/: 1,712, 1,236 and 467 vertices
 
 
+# A small launcher reports its children's peak: a child forked straight from this process would start its count at
+# this process's own resident size (Linux carries the high-water mark across fork and exec).
+LAUNCHER = ("import resource, subprocess, sys; subprocess.run(sys.argv[1:], check=True, stdout=subprocess.DEVNULL); "
+            "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)")
+
+
 def timed(argv: list[str]) -> tuple[float, float]:
     """(wall seconds, peak resident MB of its largest process) of one `replicate` command."""
     start = time.perf_counter()
-    proc = subprocess.Popen([*REPLICATE, *argv], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
+    done = subprocess.run([sys.executable, "-c", LAUNCHER, *REPLICATE, *argv], cwd=ROOT, capture_output=True,
+                          text=True)
     seconds = time.perf_counter() - start
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode:
-        raise RuntimeError(f"replicate {' '.join(argv)}: exit {proc.returncode}: {proc.stderr.read().decode()}")
-    return seconds, usage.ru_maxrss / 1024
+    if done.returncode:
+        raise RuntimeError(f"replicate {' '.join(argv)}: exit {done.returncode}: {done.stderr}")
+    return seconds, int(done.stdout.split()[-1]) / 1024
 
 
 def plan_seconds(out: Path) -> tuple[float, float]:
