@@ -33,3 +33,10 @@ def test_a_result_left_aside_by_a_killed_command_is_put_back(tmp_path):
         with outputs.locked(out):
             assert (out / "summary.json").read_text() == "the old result" and not (out / "partial").exists()
     assert not (tmp_path / ".cover.replaced").exists()
+
+
+def test_an_output_under_a_file_is_named(tmp_path):
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(ConfigError, match=r"--out .*afile/run: cannot be written there \(File exists\)"):
+        with outputs.locked(tmp_path / "afile" / "run"):
+            pass

@@ -222,6 +222,12 @@ def test_a_projected_file_with_x_and_y_swapped_is_refused_and_an_unchecked_polic
     utm.set_geometry(shapely.transform(utm.geometry.values, lambda xy: xy[:, ::-1])).to_file(tmp_path / "swap.geojson")
     with pytest.raises(RegionError, match=r"land at 108.*outside where EPSG:32641 is used .*are x and y swapped"):
         region_from_file(tmp_path / "swap.geojson")
+    pond = shapely.Point(0, 0).buffer(0.01)  # national CRSs, one across the 180th meridian, one past its zone
+    for crs, lon, lat in (("EPSG:4269", -89.4, 43.1), ("EPSG:3338", -150, 62), ("EPSG:25833", 25.5, 70.0),
+                          ("EPSG:3460", 178.4, -17.8)):
+        gpd.GeoDataFrame(geometry=[shapely.affinity.translate(pond, lon, lat)], crs="EPSG:4326").to_crs(crs).to_file(
+            tmp_path / "national.geojson")
+        assert region_from_file(tmp_path / "national.geojson").centre_lonlat()[0] == pytest.approx(lon, abs=0.01)
 
     module, meta = load_policy(root / "policies" / "general.pt")
     meta.pop("checksum")

@@ -59,3 +59,26 @@ def test_cover_interrupted_after_its_training_keeps_the_trained_run(monkeypatch,
     monkeypatch.setattr(cover, "cover_into", interrupted)
     assert command.main(["cover", "--method", "cr", "--region", lake, "--out", str(tmp_path / "d")]) == 130
     assert not (tmp_path / "d").exists()
+
+
+def test_cover_force_interrupted_puts_the_old_result_back_and_says_so(monkeypatch, capsys, tmp_path):
+    """Ctrl-C in `cover --force` over a finished result: the old result is put back, and the message says that
+    rather than pointing at a run that is no longer there."""
+    import json
+
+    from replicate.toolkit.cli import cover
+
+    out = tmp_path / "c"
+    (out / "run").mkdir(parents=True)
+    (out / "run" / "run.json").write_text(json.dumps({"status": "finished", "seed": "old"}))
+
+    def trained_then_interrupted(args, params, out, tempfile):
+        (out / "run").mkdir(parents=True)
+        (out / "run" / "run.json").write_text(json.dumps({"status": "finished", "seed": "new"}))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cover, "cover_into", trained_then_interrupted)
+    lake = str(Path(__file__).resolve().parents[2] / "data" / "bedok_outline.geojson")
+    assert command.main(["cover", "--method", "cr", "--region", lake, "--out", str(out), "--force"]) == 130
+    assert json.loads((out / "run" / "run.json").read_text())["seed"] == "old"
+    assert f"what {out} held before is back in place" in capsys.readouterr().err

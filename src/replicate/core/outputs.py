@@ -52,9 +52,13 @@ def locked(out: Path, option: str = "--out") -> Iterator[Path]:
     """Hold the lock of output ``out`` for the block; refused by name while another process holds it."""
     out = Path(out)
     lock = lock_path(out)
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a file where a folder should be, a read-only disk
+        raise ConfigError(f"{option} {out}: cannot be written there ({exc.strerror}); choose a writable "
+                          "folder") from None
     for _ in range(2):  # a second try after taking over a stale lock
         try:
-            lock.parent.mkdir(parents=True, exist_ok=True)
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
         except FileExistsError:
             pid = holder(lock)

@@ -44,7 +44,8 @@ class LoggedBar(tqdm):
             return True
         if what != self._logged[0] or now - self._logged_at >= LOG_EVERY_S or (done and self.n):
             count = f"{self.n:,}" + (f"/{self.total:,}" if self.total is not None else "")
-            log.info(f"{what or 'working'}: {count} {self.unit}s{' (done)' if done else ''}, "
+            units = self.unit if self.total == 1 else f"{self.unit}es" if self.unit.endswith("ch") else f"{self.unit}s"
+            log.info(f"{what or 'working'}: {count} {units}{' (done)' if done else ''}, "
                      f"{self.format_dict['elapsed']:.0f} s")
             self._logged_at, self._logged = now, (what, done)
         return True

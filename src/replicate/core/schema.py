@@ -29,6 +29,10 @@ class ConfigError(ValueError):
     """A configuration value is unknown, missing, of the wrong type or out of its range."""
 
 
+class RegionError(ValueError):
+    """The input cannot be turned into a region; the message names the problem."""
+
+
 def section(cls: type) -> type:
     """A frozen pydantic dataclass that refuses unknown keys and non-finite numbers; made from values in code (a
     policy's metadata, ``dataclasses.replace``), a bad value is a ``ConfigError`` naming the field."""

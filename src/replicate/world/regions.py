@@ -20,10 +20,8 @@ from shapely.geometry import MultiPolygon, Polygon, box
 from shapely.validation import explain_validity
 
 from replicate.core import artifacts
-
-
-class RegionError(ValueError):
-    """The input cannot be turned into a region; the message names the problem."""
+from replicate.core.schema import RegionError
+from replicate.world.crs import check_area_of_use, check_declared_crs, declared_crs
 
 
 @dataclass(frozen=True)
@@ -141,59 +139,6 @@ def box_region(name: str, width: float, height: float) -> Region:
     if not (width > 0 and height > 0):
         raise RegionError(f"{name}: width and height must be positive, got {width} x {height}")
     return Region(name, box(-width / 2, -height / 2, width / 2, height / 2))
-
-
-def declared_crs(path: Path) -> str | None:
-    """The CRS name a GeoJSON file's ``crs`` member declares, if any (the readers fall back to WGS 84 on a name
-    they do not know)."""
-    if path.suffix.lower() not in (".geojson", ".json"):
-        return None
-    try:
-        crs = json.loads(path.read_text()).get("crs") or {}
-        return str(crs.get("properties", {}).get("name")) if crs else None
-    except (ValueError, UnicodeDecodeError, AttributeError):
-        return None
-
-
-def check_declared_crs(path: Path, read_as) -> None:
-    """Refuse a GeoJSON whose declared CRS the reader did not take: a name it does not know (``EPSG:99999``) is
-    read as WGS 84 without a word, and the lake would land somewhere else."""
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
-
-    declared = declared_crs(path)
-    if declared is None:
-        return
-    try:
-        known = CRS.from_user_input(declared)
-    except CRSError:
-        raise RegionError(f"{path}: declares the CRS {declared!r}, which is not a known CRS (the reader would take "
-                          "it for WGS 84); write the file with the CRS its coordinates are in, e.g. EPSG:4326") \
-            from None
-    if not known.equals(read_as, ignore_axis_order=True):
-        raise RegionError(f"{path}: declares the CRS {declared!r} but was read as {read_as.to_string()}; write "
-                          "the file with a CRS the readers take (an EPSG code)")
-
-
-AREA_OF_USE_SLACK = 2.0  # degrees a lake may reach past its CRS's stated area of use (a UTM zone's edge)
-
-
-def check_area_of_use(path: Path, polys) -> None:
-    """Refuse coordinates far outside the area where their CRS is used (a UTM file with easting and northing
-    swapped lands thousands of kilometres off its zone, or nowhere on Earth): named with where they land."""
-    area = polys.crs.area_of_use
-    if area is None or (area.west <= -180 and area.east >= 180):  # a world CRS: no zone to stray from
-        return
-    west, south, east, north = polys.to_crs("EPSG:4326").total_bounds
-    slack = AREA_OF_USE_SLACK
-    inside = (np.isfinite([west, south, east, north]).all() and south >= area.south - slack
-              and north <= area.north + slack and west >= area.west - slack and east <= area.east + slack)
-    if not inside:
-        where = ("nowhere on Earth" if not np.isfinite([west, south, east, north]).all()
-                 else f"at {west:.4g}…{east:.4g}°E, {south:.4g}…{north:.4g}°N")
-        raise RegionError(f"{path}: its coordinates land {where}, outside where {polys.crs.to_string()} is used "
-                          f"({area.west:g}…{area.east:g}°E, {area.south:g}…{area.north:g}°N); are x and y swapped, or "
-                          "is the CRS not the one the coordinates are in?")
 
 
 def read_outline(path: str | Path, layer: str | None = None):

@@ -56,13 +56,16 @@ def run(args: argparse.Namespace) -> int:
     params = load_params(args.params, overrides(args.set))
     check_cover_args(args, params)
     out = Path(args.out)
+    replacing = args.force and out.is_dir() and any(out.iterdir())
     created = claim_run_folder(out, args.force, args.held)
     run = out / "run"
-    args.interrupted_hint = lambda: interrupted_hint(run)
     try:
         s = cover_into(args, params, out, tempfile)
     except BaseException:
-        if created and not interrupted_hint(run):
+        # read now: once the command ends, a replaced result is put back in place of this run
+        args.interrupted_hint = (f"what {out} held before is back in place" if replacing
+                                 else interrupted_hint(run))
+        if created and not args.interrupted_hint:
             import shutil
 
             shutil.rmtree(out, ignore_errors=True)  # refused or interrupted before training: leave nothing behind

@@ -118,11 +118,12 @@ def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
     out = claim_out_file(Path(args.out or f"my-runs/policy-{region.name}-n{n}.json"), args.force, held=args.held)
     field = None if region.utm_crs is None else out.parent / f"{out.stem}-episode"  # a lake on the map: for a GIS
     created = field is not None and claim_run_folder(field, args.force, args.held)
-    result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current, not args.no_progress,
-                             geodesic=args.geodesic, beside=True, decentralised=args.decentralised)
-    si = units.describe(params.world, params.coverage)
-    result["si"] = {**si, "mission_s": units.steps_time_s(result["steps"])}
     try:
+        result = evaluate_policy(args.policy, region, params, n, args.starts, args.lose, current,
+                                 not args.no_progress, geodesic=args.geodesic, beside=True,
+                                 decentralised=args.decentralised)
+        si = units.describe(params.world, params.coverage)
+        result["si"] = {**si, "mission_s": units.steps_time_s(result["steps"])}
         if field is not None:
             result["field_files"] = [str(p) for p in episode_files(args, params, region, units, n, current, field)]
     except BaseException:
