@@ -97,8 +97,9 @@ class CompassCanonical(CompassSymmetric):
     """f̂(o) = g*⁻¹ f(g*·o) with g* = argmax_g w·(g·o) for a fixed generic direction w in observation space: each
     observation is turned and mirrored into one canonical frame, the network runs once (not |G| times), and its
     action is turned back. Equivariant like the average: g* of g·o is g*(o) g⁻¹, so g·o has the same canonical
-    frame and f̂(g·o) = g f̂(o), wherever the argmax is unique (ties need w·(g·o) equal for two g: a set of
-    measure zero, e.g. the all-zero observation). f̂ jumps where the argmax changes, which the average does not."""
+    frame and f̂(g·o) = g f̂(o), wherever the argmax is unique. It ties where some g leaves o unchanged (the
+    all-zero observation: a buoy at rest hearing no one, no shore in range), and there f̂ is not equivariant. f̂
+    jumps where the argmax changes, which the average does not."""
 
     def __init__(self, net: nn.Module, columns: list[str], group: np.ndarray, seed: int = 0):
         super().__init__(net, columns, group)
