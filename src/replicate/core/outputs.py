@@ -55,8 +55,7 @@ def locked(out: Path, option: str = "--out") -> Iterator[Path]:
     try:
         lock.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:  # a file where a folder should be, a read-only disk
-        raise ConfigError(f"{option} {out}: cannot be written there ({exc.strerror}); choose a writable "
-                          "folder") from None
+        raise unwritable(out, option, exc) from None
     for _ in range(2):  # a second try after taking over a stale lock
         try:
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
@@ -71,8 +70,7 @@ def locked(out: Path, option: str = "--out") -> Iterator[Path]:
             lock.unlink(missing_ok=True)  # its process is gone: a killed command's lock
             continue
         except OSError as exc:  # a read-only or full disk, a folder without write permission
-            raise ConfigError(f"{option} {out}: cannot be written there ({exc.strerror}); choose a writable "
-                              "folder") from None
+            raise unwritable(out, option, exc) from None
         with os.fdopen(fd, "w") as fh:
             fh.write(f"{os.getpid()}\n")
         break
@@ -84,6 +82,11 @@ def locked(out: Path, option: str = "--out") -> Iterator[Path]:
     finally:
         if holder(lock) == os.getpid():
             lock.unlink(missing_ok=True)
+
+
+def unwritable(out: Path, option: str, exc: OSError) -> ConfigError:
+    """The error of an output whose lock cannot be written, with the system's reason."""
+    return ConfigError(f"{option} {out}: cannot be written there ({exc.strerror}); choose a writable folder")
 
 
 def put_back(out: Path) -> None:

@@ -122,12 +122,8 @@ def symmetric(net: nn.Module, columns: list[str], group: str) -> nn.Module:
     ``columns``."""
     if group == "none":
         return net
-    if group == "d4":
+    if group in ("d4", "d4_frame"):
         if not columns:
             raise ValueError("a symmetric actor needs its observation's column names (sensors.columns)")
-        return CompassSymmetric(net, columns, d4())
-    if group == "d4_frame":
-        if not columns:
-            raise ValueError("a symmetric actor needs its observation's column names (sensors.columns)")
-        return CompassCanonical(net, columns, d4())
+        return (CompassSymmetric if group == "d4" else CompassCanonical)(net, columns, d4())
     raise ValueError(f"unknown symmetry group {group!r}: one of {', '.join(typing.get_args(Symmetry))}")
