@@ -10,9 +10,9 @@
    runs them (two processes share the caches and the memory bus: each runs slower than alone), with the ratio.
    From the side-by-side figures, the projected `train` stage (every run of params.yaml's matrix and ablation)
    and the same with every update at its matmul floor; section 8 adds the other stages.
-2. One update of all 9 agents, per configuration: the batched MADDPG (hand-written gradients) against the same
-   batched update through autograd (the update before its gradients were written out) and the per-agent loop
-   (``tests/learn/loop_maddpg.py``), as ratios.
+2. One update of all 9 agents, per configuration: the training's update (``MADDPGByHand``, the gradients written
+   out) against the readable ``MADDPG.update`` (autograd; the written-out one is kept while it is at least 1.3x
+   faster at the paper's batch) and the per-agent loop (``tests/learn/loop_maddpg.py``), as ratios.
 3. Environment throughput (agent-steps per second, random actions) at E = 1, 50 and 1,024 environments, with the
    CR reward on the square and with the shore wall on Bedok, against PettingZoo MPE2 ``simple_spread_v3`` (N = 9,
    continuous actions, one environment) and VMAS ``simple_spread`` (9 agents, the same E), as ratios.
@@ -62,9 +62,10 @@ from torch import nn
 
 from replicate.core.params import load_params, run_config
 from replicate.learn.general_train import GeneralTrainer
-from replicate.learn.maddpg import MADDPG, clip_grad_per_agent, soft_update
+from replicate.learn.maddpg import MADDPG
+from replicate.learn.maddpg_by_hand import MADDPGByHand
 from replicate.learn.process import hold_freed_memory
-from replicate.learn.replay import FleetBatch, ReplayBuffer
+from replicate.learn.replay import Batch, Replay
 from replicate.learn.shared_maddpg import SharedMADDPG, live_rows
 from replicate.learn.train import Trainer
 from replicate.learn.training_worlds import baseline_worlds
@@ -210,20 +211,21 @@ def machine_gemm_gflops(seconds=1.0) -> float:
 CONFIGS = ("paper", "tuned")
 
 
-def agent_and_batch(params, config: str) -> tuple[MADDPG, object]:
-    """A fresh MADDPG of ``config`` (9 agents, CR's per-agent rewards) and one minibatch of random transitions."""
+def agent_and_batch(params, config: str) -> tuple[MADDPGByHand, object]:
+    """A fresh training learner of ``config`` (9 agents, CR's per-agent rewards) and one minibatch of random
+    transitions."""
     algo = params.configs[config]
     cfg, od = algo.maddpg, len(observation_columns(algo.observation, algo.sensors))
     rng = np.random.default_rng(0)
     size = 4 * cfg.batch_size
-    buf = ReplayBuffer(size, 9, od, 2)
-    buf.add(rng.normal(size=(size, 9, od)).astype(np.float32), rng.uniform(-1, 1, (size, 9, 2)).astype(np.float32),
-            rng.normal(size=(size, 9)).astype(np.float32), rng.normal(size=(size, 9, od)).astype(np.float32),
-            cfg.gamma)
-    return MADDPG(9, od, 2, cfg, "individual", seed=0), buf.sample(rng, cfg.batch_size)
+    buf = Replay(size, 9, od)
+    buf.add(cfg.gamma, obs=rng.normal(size=(size, 9, od)).astype(np.float32),
+            act=rng.uniform(-1, 1, (size, 9, 2)).astype(np.float32), rew=rng.normal(size=(size, 9)).astype(np.float32),
+            next_obs=rng.normal(size=(size, 9, od)).astype(np.float32))
+    return MADDPGByHand(9, od, 2, cfg, "individual", seed=0), buf.sample(rng, cfg.batch_size)
 
 
-def general_agent_and_batch(params) -> tuple[SharedMADDPG, FleetBatch]:
+def general_agent_and_batch(params) -> tuple[SharedMADDPG, Batch]:
     """A fresh general policy's learner and one minibatch as its training samples it: ``general.batch_size``
     transitions padded to the largest training fleet, each of a fleet size drawn from the training worlds'."""
     gc = params.general
@@ -238,9 +240,9 @@ def general_agent_and_batch(params) -> tuple[SharedMADDPG, FleetBatch]:
     def normal(*shape):
         return torch.randn(*shape, generator=g)
 
-    batch = FleetBatch(obs=normal(b, n_max, od), act=normal(b, n_max, 2).tanh(), rew=normal(b, n_max),
-                       next_obs=normal(b, n_max, od), pos=normal(b, n_max, 2), next_pos=normal(b, n_max, 2),
-                       live=live, next_live=live, disc=torch.full((b,), gc.gamma))
+    batch = Batch(obs=normal(b, n_max, od), act=normal(b, n_max, 2).tanh(), rew=normal(b, n_max),
+                  next_obs=normal(b, n_max, od), pos=normal(b, n_max, 2), next_pos=normal(b, n_max, 2),
+                  live=live, next_live=live, disc=torch.full((b,), gc.gamma))
     return SharedMADDPG(od, 2, gc.learner, seed=0, columns=columns), batch
 
 
@@ -289,51 +291,13 @@ def update_breakdown(agent, batch, updates: int = 5) -> dict[str, tuple[float, f
     return {k: (v / updates * 1e3, flops[k] / v / 1e9 if k in flops else float("nan")) for k, v in seconds.items()}
 
 
-class AutogradMADDPG(MADDPG):
-    """The batched update as it was before the gradients were written out (training version 1): the same losses,
-    differentiated by autograd, with ``baddbmm`` in every layer. The reference for the hand-written update."""
-
-    def update(self, batch):
-        cfg, n, bsz = self.cfg, self.n, batch.obs.shape[0]
-        obs, act, rew, next_obs = batch.obs, batch.act, batch.rew, batch.next_obs
-        r = rew.T if self.reward_mode == "individual" else rew.mean(dim=1).expand(n, bsz)
-        x = obs.reshape(1, bsz, -1).expand(n, bsz, n * self.obs_dim)
-
-        def mlp(net, h):
-            for k, (w, b) in enumerate(zip(net.weights, net.biases)):
-                h = torch.baddbmm(b, h, w)
-                h = torch.relu(h) if k < len(net.weights) - 1 else h
-            return h
-
-        with torch.no_grad():
-            next_act = torch.tanh(mlp(self.actor_target, next_obs.transpose(0, 1)))
-            x_next = torch.cat([next_obs.reshape(bsz, -1), next_act.transpose(0, 1).reshape(bsz, -1)], dim=-1)
-            y = r + cfg.gamma * mlp(self.critic_target, x_next.expand(n, bsz, -1)).squeeze(-1)
-        q = mlp(self.critic, torch.cat([x, act.reshape(1, bsz, -1).expand(n, bsz, -1)], dim=-1)).squeeze(-1)
-        self.critic_opt.zero_grad(set_to_none=True)
-        ((q - y) ** 2).mean(dim=1).sum().backward()
-        clip_grad_per_agent(self.params["critic"], cfg.grad_clip)
-        self.critic_opt.step()
-        pre = mlp(self.actor, obs.transpose(0, 1))
-        joint = act.unsqueeze(0).repeat(n, 1, 1, 1)
-        joint[self.agents, :, self.agents] = torch.tanh(pre)
-        q_pi = mlp(self.critic, torch.cat([x, joint.flatten(2)], dim=-1)).squeeze(-1)
-        self.actor_opt.zero_grad(set_to_none=True)
-        (-q_pi.mean(dim=1) + cfg.actor_reg * (pre**2).mean(dim=(1, 2))).sum().backward(inputs=self.params["actor"])
-        clip_grad_per_agent(self.params["actor"], cfg.grad_clip)
-        self.actor_opt.step()
-        soft_update(self.params["critic_target"], self.params["critic"], cfg.tau)
-        soft_update(self.params["actor_target"], self.params["actor"], cfg.tau)
-
-
 def update_times(params, config: str, rounds: int = 5) -> dict[str, float]:
-    """Seconds per update of 9 agents: the batched MADDPG (hand-written gradients), the same batched update
-    through autograd, and the per-agent loop, timed alternately (best of 5 × 5 updates, median over ``rounds``)
-    so that the machine's drift hits all three alike."""
-    batched, batch = agent_and_batch(params, config)
-    rivals = {"batched": batched, "batched, autograd": AutogradMADDPG(9, batched.obs_dim, 2, batched.cfg,
-                                                                       "individual", seed=0),
-              "per-agent loop": LoopMADDPG(batched)}
+    """Seconds per update of 9 agents: the training's update (``MADDPGByHand``, the gradients written out), the
+    readable ``MADDPG.update`` (autograd) and the per-agent loop, timed alternately (best of 5 × 5 updates, median
+    over ``rounds``) so that the machine's drift hits all three alike."""
+    by_hand, batch = agent_and_batch(params, config)
+    rivals = {"by hand": by_hand, "autograd": MADDPG(9, by_hand.obs_dim, 2, by_hand.cfg, "individual", seed=0),
+              "per-agent loop": LoopMADDPG(by_hand)}
     times = {k: [] for k in rivals}
     for agent in rivals.values():
         agent.update(batch)
@@ -454,7 +418,7 @@ class CompiledSharedMADDPG(SharedMADDPG):
         self.critic_loss = torch.compile(self._critic_loss, dynamic=False)
         self.actor_loss = torch.compile(self._actor_loss, dynamic=False)
 
-    def _critic_loss(self, b: FleetBatch, rows, now, then, next_rows):
+    def _critic_loss(self, b: Batch, rows, now, then, next_rows):
         with torch.no_grad():
             next_act = b.act.new_zeros(b.act.shape)
             next_act[next_rows] = self.actor_target(b.next_obs[next_rows])[0]
@@ -464,13 +428,13 @@ class CompiledSharedMADDPG(SharedMADDPG):
         q = self.critic.score(b.obs[rows], b.act[rows], self.critic.pooled(b.obs, b.act, now))
         return ((q - y) ** 2).mean()
 
-    def _actor_loss(self, b: FleetBatch, rows, now):
+    def _actor_loss(self, b: Batch, rows, now):
         with torch.no_grad():
             pool = self.critic.pooled(b.obs, b.act, now)
         mu, pre = self.actor(b.obs[rows])
         return -self.critic.score(b.obs[rows], mu, pool).mean() + self.cfg.actor_reg * (pre**2).mean()
 
-    def update(self, b: FleetBatch) -> None:
+    def update(self, b: Batch) -> None:
         rows, next_rows = live_rows(b.live), live_rows(b.next_live)
         now, then = self.critic.neighbours(b.pos, b.live, rows), self.critic.neighbours(b.next_pos, b.next_live, rows)
         for loss, args, opt, net, inputs in (
@@ -607,10 +571,13 @@ def update_section(params) -> None:
     print("== 2. one MADDPG update of 9 agents ==")
     for config in CONFIGS:
         t = update_times(params, config)
-        b = t["batched"]
-        print(f"{config} (batch {params.configs[config].maddpg.batch_size}): " + "; ".join(
-            f"{k} {v * 1e3:.1f} ms" + ("" if k == "batched" else f" ({v / b:.2f}x the batched time)")
-            for k, v in t.items()))
+        b = t["by hand"]
+        line = f"{config} (batch {params.configs[config].maddpg.batch_size}): " + "; ".join(
+            f"{k} {v * 1e3:.1f} ms" + ("" if k == "by hand" else f" ({v / b:.2f}x the time by hand)")
+            for k, v in t.items())
+        if config == "paper":  # the written-out gradients stay while they are worth it (CONTRIBUTING.md)
+            line += f"; keep the update by hand: {'yes' if t['autograd'] / b >= 1.3 else 'no'} (>= 1.3x)"
+        print(line)
 
 
 def environment_section(params, square) -> None:

@@ -151,15 +151,15 @@ def project_agent_and_batch():
 
     from replicate.core.params import load_params
     from replicate.learn.maddpg import MADDPG
-    from replicate.learn.replay import ReplayBuffer
+    from replicate.learn.replay import Replay
 
     cfg = load_params("params.yaml").configs["paper"].maddpg
     rng = np.random.default_rng(0)
     size = 4 * BATCH
-    buf = ReplayBuffer(size, AGENTS, OBS_WIDTH, 2)
+    buf = Replay(size, AGENTS, OBS_WIDTH)
     obs, next_obs = (rng.normal(size=(size, AGENTS, OBS_WIDTH)).astype(np.float32) for _ in range(2))
     act = rng.uniform(-1, 1, (size, AGENTS, 2)).astype(np.float32)
-    buf.add(obs, act, rng.normal(size=(size, AGENTS)).astype(np.float32), next_obs, cfg.gamma)
+    buf.add(cfg.gamma, obs=obs, act=act, rew=rng.normal(size=(size, AGENTS)).astype(np.float32), next_obs=next_obs)
     return MADDPG(AGENTS, OBS_WIDTH, 2, cfg, "individual", seed=0), buf.sample(rng, BATCH)
 
 

@@ -37,8 +37,8 @@ SMALL = ["--set", "configs.tuned.n_envs=10", "--set", "configs.tuned.maddpg.lear
 def small_trainer(params, region, out, seed=0, episodes=20, config="tuned", method="cr", **algo_changes):
     """A short run (or, with lists of seeds and folders, a stack of runs) that learns from its 500th transition."""
     rc = run_config(params, config, method)
-    algo = dataclasses.replace(rc.algo, n_envs=10, maddpg=dataclasses.replace(rc.algo.maddpg, learning_starts=500,
-                                                                                batch_size=32), **algo_changes)
+    maddpg = algo_changes.pop("maddpg", dataclasses.replace(rc.algo.maddpg, learning_starts=500, batch_size=32))
+    algo = dataclasses.replace(rc.algo, n_envs=10, maddpg=maddpg, **algo_changes)
     return Trainer(dataclasses.replace(rc, algo=algo), region, episodes, seed, out, 10, progress=False)
 
 

@@ -8,6 +8,7 @@ order over grimp's graph, so ``make test`` fails on an upward import too.
 from __future__ import annotations
 
 import ast
+import re
 import subprocess
 import sys
 
@@ -74,3 +75,13 @@ def test_the_command_line_starts_without_torch():
             "print(sorted(m for m in ('torch', 'numba', 'geopandas', 'matplotlib') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_the_readme_reads_in_a_minute():
+    """README.md: at most 100 lines, and no paragraph of prose over 80 words (code, tables and lists aside)."""
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 100
+    prose = re.sub(r"```.*?```", "", text, flags=re.S)
+    long = [p[:60] for p in prose.split("\n\n")
+            if not p.lstrip().startswith(("|", "- ", "#")) and len(p.split()) > 80]
+    assert not long, f"README paragraphs over 80 words: {long}"

@@ -12,7 +12,6 @@ import torch
 
 from replicate.learn import fingerprint
 from replicate.learn.general_train import GeneralTrainer
-from replicate.learn.replay import FleetNStep, FleetReplay
 from replicate.learn.shared_maddpg import SharedActor
 from replicate.world.sensors import ON_SHORE, on_shore, shore_rays
 
@@ -48,7 +47,7 @@ def test_a_run_writes_its_actor_curve_and_summary(two_runs):
     assert len(saved["columns"]) == 22 and saved["sensors"]["neighbours"] == 4
     assert saved["sensors"]["velocity"] == "ground"  # over the ground, as params.yaml reads it
     assert not any(c.startswith("uncovered") for c in saved["columns"])  # the uncovered-water sensor is off
-    assert saved["symmetry"] == "d4"  # the actor averaged over the compass's turns, as params.yaml trains it
+    assert saved["symmetry"] == "d4_frame"  # the compass symmetry by one canonical frame, as params.yaml trains it
     actor = SharedActor(22, 2, saved["hidden"], saved["symmetry"], saved["columns"])
     actor.load_state_dict(saved["actor"])
     for n in (5, 9, 30):  # one network for any fleet
@@ -59,38 +58,6 @@ def test_same_seed_same_run(two_runs):
     out, (a, b) = two_runs
     assert (out / "run0" / "curve.csv.gz").read_bytes() == (out / "run1" / "curve.csv.gz").read_bytes()
     assert a["selected_validation_coverage"] == b["selected_validation_coverage"]
-
-
-def test_the_replay_pads_small_fleets():
-    replay = FleetReplay(10, 4, 3)
-    live = np.ones((2, 3), bool)
-    arrays = {k: np.ones((2, 3, d)) if d else np.ones((2, 3)) for k, d in
-              (("obs", 3), ("act", 2), ("rew", 0), ("next_obs", 3), ("pos", 2), ("next_pos", 2))}
-    replay.add(live, live, 0.9, **arrays)
-    b = replay.sample(np.random.default_rng(0), 5)
-    assert b.obs.shape == (5, 4, 3) and not b.live[:, 3].any() and b.live[:, :3].all()
-    assert (b.rew[:, 3] == 0).all() and torch.equal(b.disc, torch.full((5,), 0.9))
-
-
-def test_n_step_transitions_sum_the_rewards_and_stop_at_a_loss():
-    """Three steps of one environment with two buoys, n = 2: r_t + γ r_{t+1}, bootstrapping at o_{t+2} with γ²;
-    the episode's last step closes with one reward and γ; buoy 1, lost before the third step, is not bootstrapped
-    from a transition that spans the loss."""
-    gamma, replay = 0.5, FleetReplay(10, 2, 1)
-    writer = FleetNStep(replay, 2, gamma)
-    live = [np.array([[True, True]]), np.array([[True, True]]), np.array([[True, False]])]
-    for t in range(3):
-        writer.push(t == 2, live=live[t], obs=np.full((1, 2, 1), t), act=np.zeros((1, 2, 2)),
-                    rew=np.array([[1.0, 10.0]]) * (t + 1) * live[t], pos=np.zeros((1, 2, 2)),
-                    next_obs=np.full((1, 2, 1), t + 1), next_pos=np.zeros((1, 2, 2)))
-    assert replay.size == 3
-    rew, disc, nxt = replay.data["rew"][:3], replay.disc[:3], replay.data["next_obs"][:3, 0, 0]
-    assert torch.allclose(rew[0], torch.tensor([1 + gamma * 2, 10 + gamma * 20]))
-    assert torch.allclose(rew[1], torch.tensor([2 + gamma * 3, 20.0]))  # buoy 1 earns nothing once lost
-    assert torch.allclose(rew[2], torch.tensor([3.0, 0.0]))
-    assert torch.allclose(disc, torch.tensor([gamma**2, gamma**2, gamma])) and nxt.tolist() == [2.0, 3.0, 3.0]
-    assert replay.next_live[:3].tolist() == [[True, True], [True, False], [True, False]]
-    assert replay.live[:3].tolist() == [[True, True], [True, True], [True, False]]
 
 
 def test_a_buoy_the_wall_stopped_is_on_the_shore(params, regions):

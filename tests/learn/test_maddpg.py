@@ -1,4 +1,5 @@
-"""The batched MADDPG is the same algorithm as N separate learners (openai/maddpg structure)."""
+"""The batched MADDPG is the same algorithm as N separate learners (openai/maddpg structure), and its update with
+the gradients written out (``MADDPGByHand``, the one the training runs) is its autograd update."""
 
 from __future__ import annotations
 
@@ -10,21 +11,22 @@ import pytest
 import torch
 
 from replicate.learn import run_stack
-from replicate.learn.maddpg import MADDPG, BatchedMLP, adam_step, soft_update
-from replicate.learn.replay import Batch, NStepWriter, ReplayBuffer
+from replicate.learn.maddpg import MADDPG, BatchedMLP, soft_update
+from replicate.learn.maddpg_by_hand import MADDPGByHand, adam_step, backward
+from replicate.learn.replay import Batch, Replay
 
 from .loop_maddpg import LoopMADDPG
 
 
 def filled_buffer(n, od, rng, size=2000):
-    buf = ReplayBuffer(size, n, od, 2)
+    buf = Replay(size, n, od)
     for _ in range(size // 100):
         buf.add(
-            rng.normal(size=(100, n, od)).astype(np.float32),
-            rng.uniform(-1, 1, (100, n, 2)).astype(np.float32),
-            rng.normal(size=(100, n)).astype(np.float32),
-            rng.normal(size=(100, n, od)).astype(np.float32),
             0.95,
+            obs=rng.normal(size=(100, n, od)).astype(np.float32),
+            act=rng.uniform(-1, 1, (100, n, 2)).astype(np.float32),
+            rew=rng.normal(size=(100, n)).astype(np.float32),
+            next_obs=rng.normal(size=(100, n, od)).astype(np.float32),
         )
     return buf
 
@@ -45,7 +47,7 @@ def test_batched_mlp_equals_separate_networks():
 
 @pytest.mark.parametrize("sizes", [[6, 32, 32, 1], [4, 32, 32, 2], [3, 8, 20, 17]])
 def test_hand_written_gradients_equal_autograd(sizes):
-    """BatchedMLP.backward against autograd, for the gradient of every parameter and of the input. Adam would
+    """``backward`` against autograd, for the gradient of every parameter and of the input. Adam would
     hide a gradient off by a constant factor in an end-to-end test, so the gradients are checked here directly.
     The sizes reach every form of ``stacked_matmul``: an output of 1 (outer product), of 2 (transposed) and
     wide layers."""
@@ -53,7 +55,7 @@ def test_hand_written_gradients_equal_autograd(sizes):
     x = torch.randn(3, 7, sizes[0], requires_grad=True)
     grad_out = torch.randn(3, 7, sizes[-1])
     out, saved = net.forward_saving(x.detach())
-    d_z1 = net.backward(saved, grad_out)
+    d_z1 = backward(net, saved, grad_out)
     mine = [p.grad.clone() for p in net.parameters()]
     mine_x = d_z1 @ net.weights[0].detach().mT
     net.zero_grad()
@@ -68,11 +70,15 @@ def test_hand_written_gradients_equal_autograd(sizes):
     torch.testing.assert_close(mine_x, x.grad)
 
 
+LEARNERS = [MADDPG, MADDPGByHand]
+
+
+@pytest.mark.parametrize("learner", LEARNERS)
 @pytest.mark.parametrize("mode", ["individual", "shared"])
-def test_batched_update_equals_per_agent_loop(params, mode):
+def test_batched_update_equals_per_agent_loop(params, mode, learner):
     cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=64, actor_lr=1e-3, critic_lr=1e-3)
     n, od = 4, 4
-    batched = MADDPG(n, od, 2, cfg, mode, seed=3)
+    batched = learner(n, od, 2, cfg, mode, seed=3)
     loop = LoopMADDPG(batched)
     rng = np.random.default_rng(0)
     buf = filled_buffer(n, od, rng)
@@ -91,12 +97,13 @@ def test_batched_update_equals_per_agent_loop(params, mode):
             torch.testing.assert_close(w[i].T, loop.actor_targets[i][2 * k].weight, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.parametrize("learner", LEARNERS)
 @pytest.mark.parametrize("mode", ["individual", "shared"])
-def test_update_gradients_equal_the_per_agent_loop(params, mode):
+def test_update_gradients_equal_the_per_agent_loop(params, mode, learner):
     """The gradients of both losses inside ``update`` (learning rates 0 and no clipping, so they are left in
     ``.grad`` unchanged and the actor sees the same critic), against the autograd loss of each agent."""
     cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=64, grad_clip=1e9)
-    batched = MADDPG(4, 4, 2, cfg, mode, seed=5)
+    batched = learner(4, 4, 2, cfg, mode, seed=5)
     batched.scale_learning_rates(0.0)
     loop = LoopMADDPG(batched)
     for opt in (*loop.actor_opts, *loop.critic_opts):
@@ -112,9 +119,31 @@ def test_update_gradients_equal_the_per_agent_loop(params, mode):
                 torch.testing.assert_close(b.grad[i, 0], nets[i][2 * k].bias.grad, rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.parametrize("config, mode, runs", [("paper", "individual", [0]), ("tuned", "shared", [1, 2])])
+def test_the_update_by_hand_is_the_autograd_update(params, config, mode, runs):
+    """Twenty updates of a stack of runs by each: every parameter, Adam moment and diagnostic agree to float32
+    rounding (the two differ in the order of their sums only)."""
+    cfg = dataclasses.replace(params.configs[config].maddpg, batch_size=128)
+    readable, by_hand = MADDPG(5, 6, 2, cfg, mode, runs), MADDPGByHand(5, 6, 2, cfg, mode, runs)
+    rng = np.random.default_rng(7)
+    buffers = [filled_buffer(5, 6, rng) for _ in runs]
+    for _ in range(20):
+        batch = Batch.stack([b.sample(rng, cfg.batch_size) for b in buffers])
+        got, want = by_hand.update(batch), readable.update(batch)
+        np.testing.assert_allclose(got["critic_loss"], want["critic_loss"], rtol=1e-4)
+        np.testing.assert_allclose(got["q_abs"], want["q_abs"], rtol=1e-4)
+    for name in ("actor", "critic", "actor_target", "critic_target"):
+        for p, q in zip(by_hand.params[name], readable.params[name]):
+            torch.testing.assert_close(p, q, rtol=1e-4, atol=1e-5)
+    for name in ("actor_opt", "critic_opt"):
+        mine, theirs = getattr(by_hand, name).state_dict()["state"], getattr(readable, name).state_dict()["state"]
+        for i, st in theirs.items():
+            torch.testing.assert_close(mine[i]["exp_avg"], st["exp_avg"], rtol=1e-3, atol=1e-6)
+
+
 def test_gradient_clip_and_soft_update(params):
     cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=32)
-    agent = MADDPG(3, 2, 2, cfg, "individual", seed=0)
+    agent = MADDPGByHand(3, 2, 2, cfg, "individual", seed=0)
     before = [p.detach().clone() for p in agent.critic_target.parameters()]
     agent.update(filled_buffer(3, 2, np.random.default_rng(1)).sample(np.random.default_rng(2), 32))
     for b, t, p in zip(before, agent.critic_target.parameters(), agent.critic.parameters()):
@@ -149,14 +178,15 @@ def test_adam_step_is_the_optimizer_step():
 
 @pytest.mark.parametrize("config, mode", [("tuned", "individual"), ("paper", "shared")])
 def test_a_stack_of_runs_is_its_runs_bit_for_bit(params, config, mode):
-    """MADDPG over seeds [3, 8, 4] against three one-seed MADDPGs fed the same minibatches: every parameter, Adam
-    moment and diagnostic is equal to the last bit after 30 updates (elementwise kernels round the last few
-    elements of a tensor differently, so Adam and the soft update work on each run's part as its own tensor), and
+    """The training's update over seeds [3, 8, 4] against three one-seed learners fed the same minibatches: every
+    parameter, Adam moment and diagnostic is equal to the last bit after 30 updates (elementwise kernels round the
+    last few elements of a tensor differently, so Adam and the soft update work on each run's part as its own
+    tensor), and
     ``run_stack.run_state`` is the one-run state."""
     cfg = dataclasses.replace(params.configs[config].maddpg, batch_size=64)
     seeds = [3, 8, 4]
-    stack = MADDPG(9, 2, 2, cfg, mode, seeds)
-    alone = [MADDPG(9, 2, 2, cfg, mode, s) for s in seeds]
+    stack = MADDPGByHand(9, 2, 2, cfg, mode, seeds)
+    alone = [MADDPGByHand(9, 2, 2, cfg, mode, s) for s in seeds]
     rng = np.random.default_rng(0)
     buffers = [filled_buffer(9, 2, rng) for _ in seeds]
     for _ in range(30):
@@ -211,57 +241,3 @@ def test_individual_and_shared_rewards_differ(params):
     assert not torch.allclose(ind.critic.weights[0], sha.critic.weights[0])
     with pytest.raises(ValueError, match="reward_mode"):
         MADDPG(3, 2, 2, cfg, "team", 0)
-
-
-def test_replay_buffer_wraps_and_round_trips():
-    buf = ReplayBuffer(5, 2, 2, 2)
-    for k in range(3):
-        buf.add(np.full((2, 2, 2), k, np.float32), np.zeros((2, 2, 2), np.float32), np.full((2, 2), k, np.float32),
-                np.zeros((2, 2, 2), np.float32), 0.9**k)
-    assert buf.size == 5 and buf.ptr == 1
-    assert buf.rew[:, 0].tolist() == [2, 0, 1, 1, 2]  # the third batch wrapped onto slot 0
-    other = ReplayBuffer(5, 2, 2, 2)
-    other.load_state_dict(buf.state_dict())
-    np.testing.assert_array_equal(other.rew, buf.rew)
-    np.testing.assert_array_equal(other.disc, buf.disc)
-    assert (other.ptr, other.size) == (buf.ptr, buf.size)
-
-
-def test_n_step_writer_sums_discounted_rewards_and_closes_the_episode():
-    """Hand-computed 3-step returns over a 5-step episode of 2 environments: steps 0-2 hold full 3-step
-    transitions (disc γ³); the time limit writes steps 3 and 4 with the 2 and 1 rewards left (γ², γ)."""
-    gamma, n_env, n_agents, steps = 0.5, 2, 3, 5
-    buf = ReplayBuffer(20, n_agents, 2, 2)
-    writer = NStepWriter(buf, 3, gamma)
-    rew = [np.full((n_env, n_agents), 10.0**t) for t in range(steps)]  # r_t = 10^t, every agent
-    obs = [np.full((n_env, n_agents, 2), float(t), np.float32) for t in range(steps + 1)]
-    for t in range(steps):
-        writer.add(obs[t], np.zeros((n_env, n_agents, 2), np.float32), rew[t], obs[t + 1], last=t == steps - 1)
-    assert buf.size == n_env * steps and not writer.open
-    start = buf.obs[: buf.size, 0, 0]  # the step each transition starts at
-    for t in range(steps):
-        m = min(3, steps - t)
-        rows = np.nonzero(start == t)[0]
-        assert len(rows) == n_env
-        expected = sum(gamma**k * 10.0 ** (t + k) for k in range(m))
-        np.testing.assert_allclose(buf.rew[rows], expected, rtol=1e-6)
-        np.testing.assert_allclose(buf.disc[rows], gamma**m, rtol=1e-6)
-        np.testing.assert_array_equal(buf.next_obs[rows, 0, 0], t + m)
-
-
-def test_one_step_writer_is_the_plain_buffer():
-    """n = 1 writes each step as it comes, with disc γ: the paper's transitions, in the same order."""
-    rng = np.random.default_rng(3)
-    a, b = ReplayBuffer(10, 2, 2, 2), ReplayBuffer(10, 2, 2, 2)
-    writer = NStepWriter(b, 1, 0.95)
-    for t in range(4):
-        step = [rng.normal(size=s).astype(np.float32) for s in ((2, 2, 2), (2, 2, 2), (2, 2), (2, 2, 2))]
-        a.add(*step, 0.95)
-        writer.add(*step, last=t == 3)
-    for name in ("obs", "act", "rew", "next_obs", "disc"):
-        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
-
-
-def test_n_step_below_one_is_refused():
-    with pytest.raises(ValueError, match="n >= 1"):
-        NStepWriter(ReplayBuffer(4, 2, 2, 2), 0, 0.9)

@@ -6,25 +6,25 @@ import pytest
 import torch
 
 from replicate.core.sections import SharedLearnerConfig
-from replicate.learn.replay import FleetBatch
+from replicate.learn.replay import Batch
 from replicate.learn.shared_maddpg import PooledCritic, SharedActor, SharedMADDPG
 
 OD, AD = 22, 2
 
 
-def fleet(n: int, batch: int = 16, seed: int = 0, live=None) -> FleetBatch:
+def fleet(n: int, batch: int = 16, seed: int = 0, live=None) -> Batch:
     g = torch.Generator().manual_seed(seed)
 
     def r(*shape):
         return torch.randn(*shape, generator=g)
 
     live = torch.ones(batch, n, dtype=torch.bool) if live is None else live
-    return FleetBatch(obs=r(batch, n, OD), act=torch.rand(batch, n, AD, generator=g) * 2 - 1, rew=r(batch, n),
-                      next_obs=r(batch, n, OD), pos=r(batch, n, 2) * 2, next_pos=r(batch, n, 2) * 2, live=live,
-                      next_live=live, disc=torch.full((batch,), 0.9))
+    return Batch(obs=r(batch, n, OD), act=torch.rand(batch, n, AD, generator=g) * 2 - 1, rew=r(batch, n),
+                 next_obs=r(batch, n, OD), pos=r(batch, n, 2) * 2, next_pos=r(batch, n, 2) * 2, live=live,
+                 next_live=live, disc=torch.full((batch,), 0.9))
 
 
-def pool(critic: PooledCritic, b: FleetBatch, pos=None) -> torch.Tensor:
+def pool(critic: PooledCritic, b: Batch, pos=None) -> torch.Tensor:
     """The pooled embedding of every slot of ``b`` (live or not) [B, N, embed], with positions ``pos``."""
     pos = b.pos if pos is None else pos
     every = torch.ones_like(b.live).nonzero(as_tuple=True)
@@ -180,7 +180,7 @@ class PaddedReference(SharedMADDPG):
         pooled = self.pooled(critic, obs, act, pos, live) if pooled is None else pooled
         return critic.q(torch.cat([obs, act, pooled], dim=-1)).squeeze(-1)
 
-    def update(self, b: FleetBatch) -> dict[str, float]:
+    def update(self, b: Batch) -> dict[str, float]:
         cfg = self.cfg
         live, n_live = b.live.float(), b.live.float().sum().clamp(min=1.0)
         with torch.no_grad():

@@ -10,39 +10,93 @@ centralised expert of the learned-coverage literature (CoverageControl's ``Clair
   where it has been since the release, so the cell is clipped to that known water, not to the lake.
 
 It steers to the centroid of that cell with Lloyd's law, a = gain·(c − p) − damping·v. Cells and centroids are
-computed on a raster of the lake (points ``spacing`` apart, uniform density), batched ``[E, N, M]`` over
-environments, buoys and raster points; a buoy whose cell holds no known point stays where it is.
+computed on a raster of the lake (points ``spacing`` apart, uniform density) by two compiled loops over
+environments, buoys and the raster points each buoy knows (``known`` [E, N, M]); a buoy whose cell holds no known
+point stays where it is.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import shapely
-from scipy.spatial import cKDTree
+from numba import njit
 
 from replicate.compare.baselines import Policy
 from replicate.core.studies import LloydConfig
 from replicate.world.env import CoverageEnv
 from replicate.world.sensors import neighbours
 
-CHUNK = 2_000_000  # env x buoy x neighbour x point distances computed at once (16 MB of float64)
+class Raster:
+    """The lake's raster: ``points`` [M, 2], grid points ``spacing`` apart inside the water, and ``index`` [GX, GY],
+    each grid cell's point (−1 on land), whose cell (0, 0) is centred at ``origin``: the points near a position are
+    read from the grid, not searched."""
+
+    def __init__(self, region, spacing: float):
+        minx, miny, maxx, maxy = region.bounds
+        xs, ys = np.arange(minx + spacing / 2, maxx, spacing), np.arange(miny + spacing / 2, maxy, spacing)
+        gx, gy = np.meshgrid(np.arange(len(xs)), np.arange(len(ys)), indexing="ij")
+        inside = shapely.contains_xy(region, xs[gx], ys[gy])
+        self.points = np.stack([xs[gx[inside]], ys[gy[inside]]], axis=1)
+        self.index = np.full(gx.shape, -1, np.int64)
+        self.index[inside] = np.arange(inside.sum())
+        self.origin, self.spacing = np.array([xs[0], ys[0]]), float(spacing)
 
 
 def water_points(region, spacing: float) -> np.ndarray:
-    """The raster: grid points ``spacing`` apart inside the lake → [M, 2]."""
-    minx, miny, maxx, maxy = region.bounds
-    gx, gy = np.meshgrid(np.arange(minx + spacing / 2, maxx, spacing), np.arange(miny + spacing / 2, maxy, spacing))
-    grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
-    return grid[shapely.contains_xy(region, grid[:, 0], grid[:, 1])]
+    """The raster's points: grid points ``spacing`` apart inside the lake → [M, 2]."""
+    return Raster(region, spacing).points
 
 
-def sense(known: np.ndarray, pos: np.ndarray, tree, reach: float) -> np.ndarray:
-    """Mark in ``known`` [E, N, M] the raster points (``tree``, a ``scipy.spatial.cKDTree`` of them) each buoy
-    senses now, within ``reach`` of it. pos [E, N, 2] → ``known``."""
-    e, n = pos.shape[:2]
-    for flat, near in enumerate(tree.query_ball_point(pos.reshape(-1, 2), reach)):
-        known[flat // n, flat % n, near] = True
+@njit(cache=True)
+def _sense(known, pos, points, index, origin, spacing, reach):  # pragma: no cover - compiled
+    """``sense``'s loop: each buoy marks the raster points of the grid cells around it within ``reach``."""
+    e_count, n_count = pos.shape[0], pos.shape[1]
+    span, reach2 = int(reach / spacing) + 1, reach * reach
+    for e in range(e_count):
+        for i in range(n_count):
+            x, y = pos[e, i, 0], pos[e, i, 1]
+            cx, cy = int(round((x - origin[0]) / spacing)), int(round((y - origin[1]) / spacing))
+            for gx in range(max(0, cx - span), min(index.shape[0], cx + span + 1)):
+                for gy in range(max(0, cy - span), min(index.shape[1], cy + span + 1)):
+                    m = index[gx, gy]
+                    if m >= 0 and not known[e, i, m]:
+                        dx, dy = points[m, 0] - x, points[m, 1] - y
+                        if dx * dx + dy * dy <= reach2:
+                            known[e, i, m] = True
+
+
+def sense(known: np.ndarray, pos: np.ndarray, raster: Raster, reach: float) -> np.ndarray:
+    """Mark in ``known`` [E, N, M] the raster points each buoy senses now, within ``reach`` of it (read from the
+    grid cells around it). pos [E, N, 2] → ``known``."""
+    _sense(known, np.ascontiguousarray(pos, np.float64), raster.points, raster.index, raster.origin, raster.spacing,
+           float(reach))
     return known
+
+
+@njit(cache=True)
+def _centroids(pos, known, points, rel, heard, out):  # pragma: no cover - compiled
+    """``local_centroids``'s loop: a known point is in buoy i's cell unless a buoy it hears is nearer to it."""
+    e_count, n_count, k_count = heard.shape
+    for e in range(e_count):
+        for i in range(n_count):
+            x, y = pos[e, i, 0], pos[e, i, 1]
+            sx, sy, count = 0.0, 0.0, 0
+            for m in range(points.shape[0]):
+                if not known[e, i, m]:
+                    continue
+                qx, qy = points[m, 0], points[m, 1]
+                own = (qx - x) ** 2 + (qy - y) ** 2
+                mine = True
+                for k in range(k_count):
+                    if heard[e, i, k] > 0:
+                        ox, oy = x + rel[e, i, k, 0], y + rel[e, i, k, 1]
+                        if (qx - ox) ** 2 + (qy - oy) ** 2 < own:
+                            mine = False
+                            break
+                if mine:
+                    sx, sy, count = sx + qx, sy + qy, count + 1
+            if count > 0:
+                out[e, i, 0], out[e, i, 1] = sx / count, sy / count
 
 
 def local_centroids(pos: np.ndarray, known: np.ndarray, points: np.ndarray, k: int, comm_range: float,
@@ -50,19 +104,9 @@ def local_centroids(pos: np.ndarray, known: np.ndarray, points: np.ndarray, k: i
     """Each buoy's centroid of the known water nearer to it than to any buoy it hears. pos [E, N, 2], known
     [E, N, M] bool, points [M, 2] → [E, N, 2] (the buoy's own position where that cell is empty)."""
     rel, heard = neighbours(pos, k, comm_range, alive)  # [E, N, k, 2] (other − self), [E, N, k]
-    e, n = pos.shape[:2]
-    out = pos.copy()
-    rows = max(1, CHUNK // max(1, n * (k + 1) * len(points)))
-    for lo in range(0, e, rows):  # a few environments at a time: [rows, N, k, M] distances
-        p, w = pos[lo:lo + rows], points[None, None]
-        own = np.linalg.norm(w - p[:, :, None, :], axis=-1)  # [rows, N, M]
-        others = p[:, :, None, :] + rel[lo:lo + rows]  # [rows, N, k, 2]
-        theirs = np.linalg.norm(w[:, :, None] - others[..., None, :], axis=-1)  # [rows, N, k, M]
-        theirs = np.where(heard[lo:lo + rows, ..., None] > 0, theirs, np.inf).min(axis=2)
-        cell = known[lo:lo + rows] & (own <= theirs)
-        count = cell.sum(axis=-1)
-        centroid = (cell[..., None] * points).sum(axis=2) / np.maximum(count, 1)[..., None]
-        out[lo:lo + rows] = np.where(count[..., None] > 0, centroid, p)
+    out = np.array(pos, np.float64)
+    _centroids(out.copy(), np.ascontiguousarray(known), np.ascontiguousarray(points, np.float64),
+               np.ascontiguousarray(rel, np.float64), np.ascontiguousarray(heard), out)
     return out
 
 
@@ -74,15 +118,12 @@ def decentralised_lloyd(cfg: LloydConfig, spacing: float) -> Policy:
     def policy(env: CoverageEnv) -> np.ndarray:
         sc = env.sensor_config
         if state.get("region") is not env.region:
-            points = water_points(env.region.polygon, spacing)
-            state.update(region=env.region, points=points, tree=cKDTree(points))
-        points = state["points"]
+            state.update(region=env.region, raster=Raster(env.region.polygon, spacing))
+        raster = state["raster"]
         if env.t == 0 or state.get("known") is None or state["known"].shape[:2] != env.pos.shape[:2]:
-            state["known"] = np.zeros((*env.pos.shape[:2], len(points)), bool)  # a new episode: nothing known yet
-        sense(state["known"], env.pos, state["tree"], sc.ray_range)
-        seen = np.flatnonzero(state["known"].any(axis=(0, 1)))  # a cell holds only known points: the rest waits
-        target = local_centroids(env.pos, state["known"][..., seen], points[seen], sc.neighbours, sc.comm_range,
-                                 env.alive)
+            state["known"] = np.zeros((*env.pos.shape[:2], len(raster.points)), bool)  # a new episode: none known
+        sense(state["known"], env.pos, raster, sc.ray_range)
+        target = local_centroids(env.pos, state["known"], raster.points, sc.neighbours, sc.comm_range, env.alive)
         action = np.clip(cfg.gain * (target - env.pos) - cfg.damping * env.vel, -1.0, 1.0)
         return action if env.alive is None else np.where(env.alive[..., None], action, 0.0)
 

@@ -43,9 +43,9 @@ from replicate.core.sections import (
     SWRewardConfig,
     WorldConfig,
 )
-from replicate.learn.maddpg import MADDPG
+from replicate.learn.maddpg_by_hand import MADDPGByHand
 from replicate.learn.policy import FleetPolicy
-from replicate.learn.replay import FleetBatch, ReplayBuffer
+from replicate.learn.replay import Batch, Replay
 from replicate.learn.shared_maddpg import SharedMADDPG
 from replicate.world.coverage import cover_area
 from replicate.world.currents import random_current
@@ -89,12 +89,12 @@ def _update_numbers(digest) -> None:
                            buffer_size=2 * batch, learning_starts=0, update_every=1, grad_clip=0.5, actor_reg=0.001,
                            noise_start=0.1, noise_end=0.1, noise_decay=0.0)
         rng = np.random.default_rng(2)
-        buffer = ReplayBuffer(2 * batch, 9, 2, 2)
-        buffer.add(rng.normal(size=(2 * batch, 9, 2)).astype(np.float32),
-                   rng.uniform(-1, 1, (2 * batch, 9, 2)).astype(np.float32),
-                   rng.normal(size=(2 * batch, 9)).astype(np.float32),
-                   rng.normal(size=(2 * batch, 9, 2)).astype(np.float32), cfg.gamma)
-        agent = MADDPG(9, 2, 2, cfg, "individual", seed=0)
+        buffer = Replay(2 * batch, 9, 2)
+        buffer.add(cfg.gamma, obs=rng.normal(size=(2 * batch, 9, 2)).astype(np.float32),
+                   act=rng.uniform(-1, 1, (2 * batch, 9, 2)).astype(np.float32),
+                   rew=rng.normal(size=(2 * batch, 9)).astype(np.float32),
+                   next_obs=rng.normal(size=(2 * batch, 9, 2)).astype(np.float32))
+        agent = MADDPGByHand(9, 2, 2, cfg, "individual", seed=0)
         for _ in range(2):
             agent.update(buffer.sample(rng, batch))
         for net in (agent.actor, agent.critic, agent.actor_target, agent.critic_target):
@@ -131,10 +131,10 @@ def _shared_update_numbers(digest) -> None:
     learner = SharedMADDPG(od, 2, LEARNER, seed=0)
     for _ in range(2):
         live = torch.arange(n_max)[None] < torch.randint(5, n_max + 1, (b, 1), generator=g)
-        batch = FleetBatch(obs=torch.randn(b, n_max, od, generator=g), act=torch.rand(b, n_max, 2, generator=g) * 2 - 1,
-                           rew=torch.randn(b, n_max, generator=g), next_obs=torch.randn(b, n_max, od, generator=g),
-                           pos=torch.randn(b, n_max, 2, generator=g), next_pos=torch.randn(b, n_max, 2, generator=g),
-                           live=live, next_live=live, disc=torch.full((b,), 0.9))
+        batch = Batch(obs=torch.randn(b, n_max, od, generator=g), act=torch.rand(b, n_max, 2, generator=g) * 2 - 1,
+                      rew=torch.randn(b, n_max, generator=g), next_obs=torch.randn(b, n_max, od, generator=g),
+                      pos=torch.randn(b, n_max, 2, generator=g), next_pos=torch.randn(b, n_max, 2, generator=g),
+                      live=live, next_live=live, disc=torch.full((b,), 0.9))
         learner.update(batch)
     for net in (learner.actor, learner.critic, learner.actor_target, learner.critic_target):
         for p in net.parameters():

@@ -27,9 +27,9 @@ from replicate.core.progress import bar as progress_bar
 from replicate.core.schema import to_dict
 from replicate.core.sections import GeneralConfig
 from replicate.learn.fingerprint import general_fingerprint
-from replicate.learn.replay import FleetNStep, FleetReplay
+from replicate.learn.loop import TrainingLoop
+from replicate.learn.replay import Replay
 from replicate.learn.runs import general_identity
-from replicate.learn.schedules import lr_factor, noise_sigma_from_end
 from replicate.learn.shared_maddpg import SharedMADDPG
 from replicate.learn.training_worlds import World, make_worlds
 from replicate.world.currents import random_current
@@ -56,7 +56,6 @@ class GeneralTrainer:
         streams = np.random.SeedSequence(seed).spawn(5)  # worlds, events, noise, sampling, validation
         self.rng_events = np.random.default_rng(streams[1])
         self.noise = torch.Generator().manual_seed(int(streams[2].generate_state(1)[0]))
-        self.rng_sample = np.random.default_rng(streams[3])
         if worlds is None:
             self.worlds = make_worlds(params, self.gc, np.random.default_rng(streams[0]), self.gc.n_envs)
         else:
@@ -72,10 +71,9 @@ class GeneralTrainer:
         if actor is not None:
             self.agent.actor.load_state_dict(actor)
             self.agent.actor_target.load_state_dict(actor)
-        self.replay = FleetReplay(self.gc.buffer_size, max(w.n_agents for w in self.worlds), obs_dim)
+        memory = Replay(self.gc.buffer_size, max(w.n_agents for w in self.worlds), obs_dim, fleets=True)
+        self.loop = TrainingLoop(self.agent, self.gc, [memory], [np.random.default_rng(streams[3])], stacked=False)
         self.rows: list[list] = []
-        self.best: dict | None = None
-        self.pending = 0.0
 
     def validation_worlds(self, rng: np.random.Generator) -> list[tuple[World, str, int]]:
         """Fixed validation starts (world, start, seed): every named region from the corner patch, every world
@@ -94,8 +92,7 @@ class GeneralTrainer:
         if self.initial_actor is not None:
             self.validate(0)  # the starting weights are the ones to beat
         for batch in progress_bar(self.progress, iterable=range(batches), desc="training", unit="batch"):
-            sigma = noise_sigma_from_end(gc, batch / batches)
-            self.agent.scale_learning_rates(lr_factor(gc, batch / batches))
+            sigma = self.loop.schedule(batch / batches)
             world = self.worlds[batch % len(self.worlds)]
             row = self.play(world, sigma)
             due = (batch + 1) % len(self.worlds) == 0 or batch == batches - 1
@@ -114,7 +111,7 @@ class GeneralTrainer:
             if rng.uniform() < gc.current_prob else None
         env.set_current(current)
         obs = env.reset(start=start)
-        writer = FleetNStep(self.replay, gc.n_step, gc.gamma)
+        (writer,) = self.loop.writers()
         losses, q_abs = [], []
         for t in range(gc.episode_length):
             if lose and t == gc.episode_length // 2:
@@ -125,25 +122,14 @@ class GeneralTrainer:
             act = self.agent.act(obs, sigma, self.noise).numpy()
             step = env.step(act)
             writer.push(t == gc.episode_length - 1, live=live, obs=obs, act=act, rew=step.pay, pos=pos,
-                        next_obs=step.obs, next_pos=env.pos.copy())
+                        next_obs=step.obs, next_pos=env.pos.copy(), next_live=live)  # bootstrap on those in service
             obs = step.obs
-            for stats in self.learn(env.n_envs):
+            for stats in self.loop.learn(env.n_envs):
                 losses.append(stats["critic_loss"])
                 q_abs.append(stats["q_abs"])
         coverage = float(np.mean(step.union_area / world.region.polygon.area))
         return [start, lose, 0.0 if current is None else current.max_speed(), coverage,
                 float(np.mean(losses)) if losses else math.nan, float(np.mean(q_abs)) if q_abs else math.nan]
-
-    def learn(self, transitions: int):
-        """The updates due after ``transitions`` more: one per ``update_every`` once the memory holds
-        ``learning_starts``."""
-        gc = self.gc
-        if self.replay.size < gc.learning_starts:
-            return
-        self.pending += transitions / gc.update_every
-        while self.pending >= 1.0:
-            self.pending -= 1.0
-            yield self.agent.update(self.replay.sample(self.rng_sample, gc.batch_size))
 
     @torch.no_grad()
     def validate(self, episodes: int) -> float:
@@ -157,23 +143,22 @@ class GeneralTrainer:
                 obs = env.step(self.agent.actor(torch.as_tensor(obs))[0].numpy()).obs
             scores.append(float(env.coverage_fraction().mean()))
         score = float(np.mean(scores))
-        if self.best is None or score > self.best["validation"]:
-            state = {k: v.clone() for k, v in self.agent.actor.state_dict().items()}
-            self.best = {"validation": score, "episodes": episodes, "actor": state}
+        self.loop.keep(0, score, episodes, lambda: {k: v.clone() for k, v in self.agent.actor.state_dict().items()},
+                       ties="earlier")
         return score
 
     def finish(self, wall: float, cpu: float) -> dict:
-        gc = self.gc
+        gc, best = self.gc, self.loop.kept[0]
         artifacts.torch_save(self.out / "actor.pt", {
-            "format": artifacts.CHECKPOINT_FORMAT, "actor": self.best["actor"], "observation": "local",
+            "format": artifacts.CHECKPOINT_FORMAT, "actor": best["actor"], "observation": "local",
             "sensors": to_dict(gc.sensors),
             "columns": observation_columns("local", gc.sensors), "learner": to_dict(gc.learner),
             "hidden": gc.learner.hidden, "symmetry": gc.learner.symmetry,
-            "selected_episode": self.best["episodes"], "seed": self.seed})
+            "selected_episode": best["episodes"], "seed": self.seed})
         artifacts.write_csv(self.out / "curve.csv.gz", CURVE_COLUMNS, self.rows)
         summary = {"status": "finished", "seed": self.seed, "general": to_dict(gc),
                    "worlds": [{"region": w.region.name, "n_agents": w.n_agents} for w in self.worlds],
-                   "selected_episode": self.best["episodes"], "selected_validation_coverage": self.best["validation"],
+                   "selected_episode": best["episodes"], "selected_validation_coverage": best["score"],
                    "wall_seconds": round(wall, 2), "cpu_seconds": round(cpu, 2),
                    "arithmetic": general_fingerprint()}  # which numbers trained it (``fingerprint``)
         artifacts.write_json(self.out / "run.json", summary)

@@ -5,13 +5,11 @@ own observation. The N agents' networks are stacked (weights [N, in, out]) and e
 matmul per layer, so an update of all agents is one forward/backward pass, not a Python loop over agents. Because
 each agent's parameters and Adam state are separate slices, this is the same algorithm as N separate learners.
 Several independent runs (seeds) of the N agents can train in one process: their networks are stacked too
-(weights [S·N, in, out]) and every array carries a leading run axis [S, ...]. A run's arithmetic does not depend on
-the stack it trains in (each stacked matrix is multiplied, reduced and stepped on its own;
-``tests/learn/test_training.py`` checks that a run's curve is bit for bit its single-run curve), and the per-operation
-overhead that dominates an update at ``tuned``'s batch of 128 is paid once for the stack (``make bench``).
-The backward pass is written out (two matmuls per layer) rather than left to autograd: 1.4× faster per update at
-the paper's batch of 1024 and as fast at `tuned`'s 128 (``make bench`` section 2), because each matmul takes the
-form the CPU BLAS runs fastest and the actor's gradient reads only the critic's own-action columns.
+(weights [S·N, in, out]) and every array carries a leading run axis [S, ...].
+
+``MADDPG.update`` is the algorithm as it reads: two losses and autograd. The training computes the same update with
+its gradients written out (``maddpg_by_hand.MADDPGByHand``: 1.4× faster at the paper's batch of 1024, ``make bench``
+section 2), which ``tests/learn/test_maddpg.py`` checks against this one and against a per-agent loop.
 
 ``reward_mode`` ``"shared"`` is the original collaborative MADDPG (every critic learns the team reward, the
 agents' mean; for SW-MARL, which already returns one r to everyone, that is r itself); ``"individual"`` is the
@@ -21,7 +19,9 @@ paper's modified MADDPG (critic i learns agent i's own reward, eq. 6).
 from __future__ import annotations
 
 import copy
+import dataclasses
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -58,9 +58,7 @@ class BatchedMLP(nn.Module):
     """N independent ReLU MLPs evaluated at once: x [N, B, in] → [N, B, out].
 
     Glorot-uniform weights and zero biases (openai/maddpg's ``fully_connected`` defaults), drawn from
-    ``generator``. ``forward_saving`` and ``backward`` are the training pass: MADDPG's two losses need only
-    these two-matmul-per-layer gradients, written out so that each matmul takes its fastest form
-    (``stacked_matmul``) and the actor's gradient goes through the critic's own-action columns only.
+    ``generator``. Each layer's matmul takes the form the CPU BLAS runs fastest (``stacked_matmul``).
     """
 
     def __init__(self, n: int, sizes: list[int], generator: torch.Generator):
@@ -84,11 +82,16 @@ class BatchedMLP(nn.Module):
         return out
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.forward_saving(x)[0]
+        """x [N, B, in] → [N, B, out], differentiable by autograd."""
+        return self.layers(x)[0]
 
     @torch.no_grad()
     def forward_saving(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
-        """→ (output [N, B, out], the input of every layer: x and the hidden ReLU outputs, for ``backward``)."""
+        """``forward`` without autograd, keeping what a written-out backward pass needs (``maddpg_by_hand``)."""
+        return self.layers(x)
+
+    def layers(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """→ (output [N, B, out], the input of every layer: x and the hidden ReLU outputs)."""
         inputs, last = [], len(self.weights) - 1
         for k, (w, b) in enumerate(zip(self.weights, self.biases)):
             inputs.append(x)
@@ -96,22 +99,6 @@ class BatchedMLP(nn.Module):
             if k < last:
                 x = torch.relu_(x)
         return x, inputs
-
-    @torch.no_grad()
-    def backward(self, inputs: list[torch.Tensor], grad_out: torch.Tensor, weight_grads: bool = True) -> torch.Tensor:
-        """Back-propagate ∂L/∂output [N, B, out]; store ∂L/∂W, ∂L/∂b in each parameter's ``.grad`` (if
-        ``weight_grads``). → ∂L/∂(first layer's pre-activation) [N, B, h₁], from which a caller takes the
-        gradient with respect to any input columns: ∂L/∂x = (that) @ W₁ᵀ."""
-        d = grad_out
-        for k in range(len(self.weights) - 1, -1, -1):
-            w, b = self.weights[k], self.biases[k]
-            if weight_grads:
-                w.grad = stacked_matmul(inputs[k].mT, d).contiguous()  # ∂L/∂W = xᵀ d
-                b.grad = d.sum(dim=1, keepdim=True)
-            if k > 0:  # ∂L/∂x = d Wᵀ, then through the ReLU (its output is the saved input)
-                d = stacked_matmul(d, w.mT)
-                torch.ops.aten.threshold_backward.grad_input(d, inputs[k], 0, grad_input=d)
-        return d
 
 
 def clip_grad_per_agent(params: list[torch.Tensor], max_norm: float) -> None:
@@ -130,33 +117,37 @@ def per_run(tensors: list[torch.Tensor], runs: int) -> list[torch.Tensor]:
 
 
 @torch.no_grad()
-def adam_step(opt: torch.optim.Adam, runs: int = 1) -> None:
-    """``opt.step()`` for a one-group fused Adam over ``runs`` stacked runs, without the ``Optimizer.step``
-    wrapper: the same ``_fused_adam_`` kernel on the optimiser's own state, so the result and ``state_dict`` are the
-    same. The wrapper's bookkeeping cost as much as the kernel on ``tuned``'s small tensors (``make bench``
-    section 2)."""
-    (group,) = opt.param_groups
-    params = group["params"]
-    for p in params:
-        if p not in opt.state:  # the first step creates the state, as ``opt.step()`` does
-            opt.state[p] = {"step": torch.zeros((), device=p.device), "exp_avg": torch.zeros_like(p),
-                            "exp_avg_sq": torch.zeros_like(p)}
-    state = [opt.state[p] for p in params]
-    steps = [s["step"] for s in state]
-    torch._foreach_add_(steps, 1)
-    beta1, beta2 = group["betas"]
-    torch._fused_adam_(
-        per_run(params, runs), per_run([p.grad for p in params], runs), per_run([s["exp_avg"] for s in state], runs),
-        per_run([s["exp_avg_sq"] for s in state], runs), [], [step for step in steps for _ in range(runs)],
-        lr=group["lr"], beta1=beta1, beta2=beta2, weight_decay=group["weight_decay"], eps=group["eps"],
-        amsgrad=False, maximize=False,
-    )
-
-
-@torch.no_grad()
 def soft_update(target: list[torch.Tensor], online: list[torch.Tensor], tau: float, runs: int = 1) -> None:
     """θ' ← τθ + (1 − τ)θ' for parameter lists of ``runs`` stacked runs."""
     torch._foreach_lerp_(per_run(target, runs), per_run(online, runs), tau)
+
+
+@dataclass
+class Views:
+    """A minibatch of S runs as the N critics and actors read it: obs/act/next_obs [S, B, N, ·]; ``r`` [S·N, B]
+    (critic i's reward) and ``disc`` [S·N, B] (γᵐ), row s·N + i being run s's agent i."""
+
+    runs: int
+    n: int
+    batch: int
+    obs: torch.Tensor
+    act: torch.Tensor
+    next_obs: torch.Tensor
+    r: torch.Tensor | None = None
+    disc: torch.Tensor | None = None
+
+    def each_critic(self, t: torch.Tensor) -> torch.Tensor:
+        """[S, B, ...] → [S·N, B, ...]: every critic of run s sees run s's t."""
+        return t.unsqueeze(1).expand(self.runs, self.n, *t.shape[1:]).reshape(self.runs * self.n, *t.shape[1:])
+
+    def per_agent(self, t: torch.Tensor) -> torch.Tensor:
+        """[S, B, N, ...] → [S·N, B, ...]: agent i's own slice."""
+        return t.transpose(1, 2).reshape(self.runs * self.n, self.batch, *t.shape[3:])
+
+    def joint(self, o: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        """The critics' input [x, a_1..a_N] from o, a [S, B, N, ·] → [S·N, B, N·(od + ad)]."""
+        s, b = self.runs, self.batch
+        return self.each_critic(torch.cat([o.reshape(s, b, -1), a.reshape(s, b, -1)], dim=-1))
 
 
 NETWORKS = ("actor", "critic", "actor_target", "critic_target")
@@ -239,57 +230,58 @@ class MADDPG:
         noisy = np.stack([m + sigma * rng.standard_normal(m.shape) for m, rng in zip(runs, rngs, strict=True)])
         return np.clip(noisy, -1.0, 1.0).astype(np.float32).reshape(mu.shape), mu
 
-    @torch.no_grad()
-    def update(self, batch: Batch) -> dict[str, np.ndarray]:
-        """One gradient step of every agent's critic, then actor, then the soft target update, in every run.
-        ``batch`` is [S, B, ...] (``Batch.stack``), or [B, ...] with one run. → each run's diagnostics, [S].
-
-        The gradients are written out (``BatchedMLP.backward``); ``tests/learn/test_maddpg.py`` checks them against
-        the per-agent autograd loop of ``tests/learn/loop_maddpg.py``."""
-        cfg, n, s = self.cfg, self.n, self.runs
+    def unpack(self, batch: Batch) -> Views:
+        """The minibatch as the critics and actors read it (``Views``)."""
+        s, n = self.runs, self.n
         obs, act, next_obs = (self._with_runs(t.to(self.device), 3) for t in (batch.obs, batch.act, batch.next_obs))
         rew, disc = self._with_runs(batch.rew.to(self.device), 2), self._with_runs(batch.disc.to(self.device), 1)
-        bsz = obs.shape[1]
+        v = Views(s, n, obs.shape[1], obs, act, next_obs)
+        r = v.per_agent(rew) if self.reward_mode == "individual" else v.each_critic(rew.mean(dim=2))
+        return dataclasses.replace(v, r=r, disc=v.each_critic(disc))
 
-        def each_critic(t):  # [S, B, ...] → [S·N, B, ...]: every critic of run s sees run s's t
-            return t.unsqueeze(1).expand(s, n, *t.shape[1:]).reshape(s * n, *t.shape[1:])
+    def with_own_actions(self, v: Views, joint: torch.Tensor, mu: torch.Tensor) -> torch.Tensor:
+        """Critic i's joint input ``joint`` [S·N, B, N·(od + ad)] with agent i's action replaced by μ_i(o_i)
+        (mu [S·N, B, ad]); the other agents keep the batch's actions."""
+        s, n, bsz = v.runs, v.n, v.batch
+        joint = joint.clone()
+        actions = joint.view(s, n, bsz, -1)[..., n * self.obs_dim:].view(s, n, bsz, n, -1)  # [S, N, B, N, ad]
+        actions[:, self.agents, :, self.agents] = mu.view(s, n, bsz, -1).transpose(0, 1)
+        return joint
 
-        def per_agent(t):  # [S, B, N, ...] → [S·N, B, ...]: agent i's own slice
-            return t.transpose(1, 2).reshape(s * n, bsz, *t.shape[3:])
-
-        r = per_agent(rew) if self.reward_mode == "individual" else each_critic(rew.mean(dim=2))  # [S·N, B]
-
-        def joint_input(o, a):  # critic input [x, a_1..a_N], [S, B, N, ·] twice → [S·N, B, N·(od + ad)]
-            return each_critic(torch.cat([o.reshape(s, bsz, -1), a.reshape(s, bsz, -1)], dim=-1))
+    def update(self, batch: Batch) -> dict[str, np.ndarray]:
+        """One gradient step of every agent's critic, then actor, then the soft target update, in every run.
+        ``batch`` is [S, B, ...] (``Batch.stack``), or [B, ...] with one run. → each run's diagnostics, [S]."""
+        cfg, v = self.cfg, self.unpack(batch)
 
         # Critic: y_i = r_i + γ Q'_i(x', μ'_1(o'_1), …, μ'_N(o'_N))   (paper eq. y; no terminal states; an m-step
         # transition holds r_i = Σ_k γᵏ r_i,t+k and disc = γᵐ, Sutton & Barto §7.1)
-        next_act = torch.tanh(self.actor_target(per_agent(next_obs))).view(s, n, bsz, -1).transpose(1, 2)
-        y = r + each_critic(disc) * self.critic_target(joint_input(next_obs, next_act)).squeeze(-1)
-        q, saved = self.critic.forward_saving(joint_input(obs, act))
-        td = q.squeeze(-1) - y  # [S·N, B]
-        self.critic.backward(saved, (2.0 / bsz) * td.unsqueeze(-1))  # ∂L/∂Q_i = 2(Q_i − y_i)/B
+        with torch.no_grad():
+            next_act = torch.tanh(self.actor_target(v.per_agent(v.next_obs))).view(v.runs, v.n, v.batch, -1)
+            y = v.r + v.disc * self.critic_target(v.joint(v.next_obs, next_act.transpose(1, 2))).squeeze(-1)
+        q = self.critic(v.joint(v.obs, v.act)).squeeze(-1)  # [S·N, B]
+        critic_loss = ((q - y) ** 2).mean(dim=1).sum()  # Σ_i of critic i's mean squared TD error
+        self.critic_opt.zero_grad(set_to_none=True)
+        critic_loss.backward()
         clip_grad_per_agent(self.params["critic"], cfg.grad_clip)
-        adam_step(self.critic_opt, s)
+        self.critic_opt.step()
 
         # Actor: ∇θ_i J = E[∇θ_i μ_i(o_i) ∇a_i Q_i(x, a_1, …, μ_i(o_i), …, a_N)] + 1e-3·mean(pre-tanh²)
-        pre, actor_saved = self.actor.forward_saving(per_agent(obs))  # [S·N, B, ad]
-        mu = torch.tanh(pre)
-        joint = saved[0].clone()  # critic i sees the batch's observations and actions ...
-        actions = joint.view(s, n, bsz, -1)[..., n * self.obs_dim:].view(s, n, bsz, n, -1)  # [S, N, B, N, ad]
-        actions[:, self.agents, :, self.agents] = mu.view(s, n, bsz, -1).transpose(0, 1)  # ... but its own, μ_i(o_i)
-        q_pi, saved = self.critic.forward_saving(joint)
-        d_z1 = self.critic.backward(saved, torch.full_like(q_pi, -1.0 / bsz), weight_grads=False)  # −mean Q_i
-        d_mu = stacked_matmul(d_z1, self.critic.weights[0][self.stacked, self.own_action_rows].mT)
-        d_pre = d_mu * (1.0 - mu * mu) + (2.0 * cfg.actor_reg / pre[0].numel()) * pre  # through tanh; + reg
-        self.actor.backward(actor_saved, d_pre)  # through μ_i only, not into Q's weights
+        pre = self.actor(v.per_agent(v.obs))  # [S·N, B, ad]
+        q_pi = self.critic(self.with_own_actions(v, v.joint(v.obs, v.act), torch.tanh(pre))).squeeze(-1)
+        actor_loss = (-q_pi.mean(dim=1) + cfg.actor_reg * (pre**2).mean(dim=(1, 2))).sum()
+        self.actor_opt.zero_grad(set_to_none=True)
+        actor_loss.backward(inputs=self.params["actor"])  # through μ_i only, not into Q's weights
         clip_grad_per_agent(self.params["actor"], cfg.grad_clip)
-        adam_step(self.actor_opt, s)
+        self.actor_opt.step()
 
-        soft_update(self.params["critic_target"], self.params["critic"], cfg.tau, s)  # θ' ← τθ + (1 − τ)θ'
-        soft_update(self.params["actor_target"], self.params["actor"], cfg.tau, s)
-        losses = (td**2).mean(dim=1).view(s, n)  # each critic's loss
+        soft_update(self.params["critic_target"], self.params["critic"], cfg.tau, v.runs)  # θ' ← τθ + (1 − τ)θ'
+        soft_update(self.params["actor_target"], self.params["actor"], cfg.tau, v.runs)
+        return self.diagnostics(q.detach(), y, v)
+
+    def diagnostics(self, q: torch.Tensor, y: torch.Tensor, v: Views) -> dict[str, np.ndarray]:
+        """Each run's mean critic loss over its agents and mean |Q|, [S] each."""
+        losses = ((q - y) ** 2).mean(dim=1).view(v.runs, v.n)  # each critic's loss
         return {
-            "critic_loss": np.array([run.sum().item() / n for run in losses]),
-            "q_abs": np.array([run.abs().mean().item() for run in q.view(s, -1)]),
+            "critic_loss": np.array([run.sum().item() / v.n for run in losses]),
+            "q_abs": np.array([run.abs().mean().item() for run in q.view(v.runs, -1)]),
         }

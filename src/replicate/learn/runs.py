@@ -16,7 +16,7 @@ from replicate.world.regions import Region
 
 # Part of every run's identity: raise it with any change that alters the numbers a run produces (the update's
 # arithmetic, the environment, the rewards), so that runs trained by older code are retrained, not reused.
-# 1: autograd update; 2: hand-written gradients in their fastest matmul forms (maddpg.py);
+# 1: autograd update; 2: hand-written gradients in their fastest matmul forms (maddpg_by_hand.py);
 # 3: a forward pass's narrow outputs (64 → 1, 64 → 2) by plain bmm, no longer transposed.
 TRAINING_VERSION = 3
 
@@ -60,9 +60,10 @@ def finished_run(out: str | Path, identity: dict) -> dict | None:
 
 
 # ---- a general run: one policy for any lake ------------------------------------------------------------------
-GENERAL_VERSION = 3  # raised when the general training's arithmetic changes: older runs are trained again
+GENERAL_VERSION = 4  # raised when the general training's arithmetic changes: older runs are trained again
 # 2: the update runs on the buoys in service only and applies φ's last layer to the pooled mean (float rounding)
 # 3: a velocity over the ground is the buoy's displacement over the last step / dt (the shore's stop included)
+# 4: the exploration σ of the per-region training's rounding (``schedules.noise_sigma``)
 KEPT_POLICY = "general.pt"  # the best-validated seed's policy, the one a user deploys
 SEED_POLICY = "policy.pt"  # each seed's exported policy, in its run folder
 

@@ -1,11 +1,7 @@
 """Exploration and learning-rate schedules over a training's progress (0 at the first episode or batch, 1 at the
 last): σ falls linearly from ``noise_start`` to ``noise_end`` over the first ``noise_decay`` of training, the
-learning rates linearly from their configured values to ``lr_end`` × them at the end.
-
-The per-region and the general training read the same σ line in two roundings: ``noise_sigma`` counts from the
-start, ``noise_sigma_from_end`` (the general policy's) from the end. They differ in the last bit at 215 of the 251
-batches of a general seed; the general runs keep theirs so that the committed seeds stay bit for bit what their
-training computes, and move to ``noise_sigma`` with their next retraining (a new ``GENERAL_VERSION``).
+learning rates linearly from their configured values to ``lr_end`` × them at the end. The per-region and the
+general training read the same two lines.
 """
 
 from __future__ import annotations
@@ -17,11 +13,6 @@ def noise_sigma(cfg, progress: float) -> float:
         return cfg.noise_end
     frac = min(progress / cfg.noise_decay, 1.0)
     return cfg.noise_start + frac * (cfg.noise_end - cfg.noise_start)
-
-
-def noise_sigma_from_end(cfg, progress: float) -> float:
-    """``noise_sigma``'s line, rounded as the general policy's committed seeds were trained."""
-    return cfg.noise_end + (cfg.noise_start - cfg.noise_end) * max(0.0, 1.0 - progress / max(cfg.noise_decay, 1e-9))
 
 
 def lr_factor(cfg, progress: float) -> float:

@@ -28,7 +28,7 @@ import torch
 from torch import nn
 
 from replicate.core.sections import SharedLearnerConfig
-from replicate.learn.replay import FleetBatch
+from replicate.learn.replay import Batch
 from replicate.learn.symmetry import symmetric
 
 
@@ -160,7 +160,7 @@ class SharedMADDPG:
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
 
-    def update(self, b: FleetBatch) -> dict[str, float]:
+    def update(self, b: Batch) -> dict[str, float]:
         """One step of the critic, the actor and the targets on the buoys in service of ``b`` (its rows: padding
         and lost buoys cost nothing); whom each buoy pools is selected once per state."""
         cfg, critic = self.cfg, self.critic

@@ -25,15 +25,19 @@ from replicate.core.progress import bar as progress_bar
 from replicate.core.schema import ConfigError, to_dict
 from replicate.learn import run_stack
 from replicate.learn.fingerprint import fingerprint
-from replicate.learn.maddpg import MADDPG, BatchedMLP
-from replicate.learn.replay import Batch, NStepWriter, ReplayBuffer
+from replicate.learn.loop import TrainingLoop
+from replicate.learn.maddpg import BatchedMLP
+from replicate.learn.maddpg_by_hand import MADDPGByHand
+from replicate.learn.replay import Replay
 from replicate.learn.runs import run_identity
-from replicate.learn.schedules import lr_factor, noise_sigma
 from replicate.world.regions import Region
 from replicate.world.scenario import run_env
 
 DIAGNOSTICS = ("critic_loss", "q_abs", "saturated", "noise")
 CURVE = "curve.csv.gz"  # the per-episode curve of a run, in its folder
+# the update the runs train with: ``maddpg.MADDPG``'s, its gradients written out (``maddpg_by_hand``); a change of
+# the networks or losses in ``MADDPG`` trains with ``MADDPG`` itself until the written-out gradients follow
+LEARNER = MADDPGByHand
 
 
 def curve_header(n_agents: int) -> list[str]:
@@ -99,21 +103,17 @@ class Trainer:
         self.val_env = (run_env(self.region, self.rc, algo.select_episodes * runs, self.val_seeds, reward=False)
                         if algo.select_every else None)
         self.noise_rngs = [np.random.default_rng(st[1]) for st in streams]
-        self.sample_rngs = [np.random.default_rng(st[2]) for st in streams]
         n, od = self.env.n_agents, self.env.obs_dim
-        self.agent = MADDPG(n, od, 2, algo.maddpg, self.rc.method.reward_mode, seed=self.seeds)
+        self.agent = LEARNER(n, od, 2, algo.maddpg, self.rc.method.reward_mode, seed=self.seeds)
         capacity = min(algo.maddpg.buffer_size, self.episodes * self.rc.world.episode_length)
-        self.buffers = [ReplayBuffer(capacity, n, od, 2) for _ in self.seeds]
-        self.writers = [NStepWriter(b, algo.maddpg.n_step, algo.maddpg.gamma) for b in self.buffers]
+        # per run: its replay memory sampled by its own generator; the kept actors when selecting
+        self.loop = TrainingLoop(self.agent, algo.maddpg, [Replay(capacity, n, od) for _ in self.seeds],
+                                 [np.random.default_rng(st[2]) for st in streams], stacked=True)
         self.rows: list[list] = [[] for _ in self.seeds]  # per run, one row per episode
         self.validation: list[list] = [[] for _ in self.seeds]  # per run, [episode, validation coverage]
-        self.best: list[dict | None] = [None] * runs  # per run {"episode", "coverage", "actor"} when selecting
         self.transitions = 0  # per run
-        self.pending_updates = 0.0
         self.wall = 0.0  # of the whole stack
         self.cpu = 0.0  # of the whole stack: this process's CPU time, which other processes do not inflate
-        self.update_seconds = 0.0  # time spent in MADDPG updates (the rest is environment, geometry, acting)
-        self.updates = 0
 
     def column(self, name: str) -> int:
         """The index of a named column (``curve_header``) in the rows of the curve."""
@@ -136,7 +136,7 @@ class Trainer:
         """Train every run to ``episodes``, checkpointing on the way; returns the runs' summaries. Each batch of
         ``n_envs`` episodes per run is played (``play``, which learns as the transitions come in: ``learn``),
         recorded (``record``), then validated and checkpointed on their schedules."""
-        algo, cfg = self.rc.algo, self.rc.algo.maddpg
+        algo = self.rc.algo
         n_env, runs = algo.n_envs, len(self.seeds)
         for k, out in enumerate(self.outs):
             artifacts.write_json(out / "run.json", {**self.run_record(k), "status": "running"})
@@ -144,9 +144,7 @@ class Trainer:
                            desc="training", unit="episode", smoothing=0.05)
         t0, c0 = time.perf_counter() - self.wall, time.process_time() - self.cpu
         for batch in range(len(self.rows[0]) // n_env, self.episodes // n_env):
-            progress = batch * n_env / self.episodes
-            sigma = noise_sigma(cfg, progress)
-            self.agent.scale_learning_rates(lr_factor(cfg, progress))
+            sigma = self.loop.schedule(batch * n_env / self.episodes)
             played = self.play(sigma)
             self.record(batch, played, sigma)
             bar.update(n_env * runs)
@@ -170,39 +168,24 @@ class Trainer:
         runs, n_env = len(self.seeds), algo.n_envs
         obs = self._runs(self.env.reset())  # [S, E, N, od]
         played = Played(returns=np.zeros((runs, n_env, n)), saturated=np.zeros(runs))
+        writers = self.loop.writers()
         for t in range(horizon):
             action, mu = self.agent.act(obs, sigma, self.noise_rngs)
             played.saturated += (np.abs(mu) > 0.99).mean(axis=(1, 2, 3))
             step = self.env.step(action.reshape(-1, n, 2))
             reward, pay, next_obs = self._runs(step.reward), self._runs(step.pay), self._runs(step.obs)
-            for k, writer in enumerate(self.writers):
-                writer.add(obs[k], action[k], pay[k], next_obs[k], last=t == horizon - 1)
+            for k, writer in enumerate(writers):
+                writer.push(t == horizon - 1, obs=obs[k], act=action[k], rew=pay[k], next_obs=next_obs[k])
             played.returns += reward
             obs = next_obs
             self.transitions += n_env
-            self.learn(played)
+            for stats in self.loop.learn(n_env):  # the updates due, each on a minibatch of every run's memory
+                played.critic_loss.append(stats["critic_loss"])
+                played.q_abs.append(stats["q_abs"])
         # CR's reward already measured the union at the last step; SW's did not
         coverage = step.union_area / self.region.area if self.rc.method.reward == "cr" else None
         played.coverage = self._runs(self.env.coverage_fraction() if coverage is None else coverage)
         return played
-
-    def learn(self, played: Played) -> None:
-        """The updates due after the transitions so far: one per ``update_every`` transitions once the buffers
-        hold ``learning_starts``, each on a minibatch of every run's own buffer."""
-        cfg = self.rc.algo.maddpg
-        if self.buffers[0].size < cfg.learning_starts:
-            return
-        self.pending_updates += self.rc.algo.n_envs / cfg.update_every
-        tu = time.perf_counter()
-        while self.pending_updates >= 1.0:
-            self.pending_updates -= 1.0
-            minibatch = Batch.stack([buffer.sample(rng, cfg.batch_size)
-                                     for buffer, rng in zip(self.buffers, self.sample_rngs)])
-            stats = self.agent.update(minibatch)
-            played.critic_loss.append(stats["critic_loss"])
-            played.q_abs.append(stats["q_abs"])
-            self.updates += 1
-        self.update_seconds += time.perf_counter() - tu
 
     def record(self, batch: int, played: Played, sigma: float) -> None:
         """One curve row per episode of the batch, per run (``curve_header``)."""
@@ -226,14 +209,14 @@ class Trainer:
                 "wall_seconds": round(self.wall, 2),  # of the stack: every run of it took this long
                 "cpu_seconds": round(self.cpu, 2),  # of the stack's process
                 "runs_in_process": len(self.seeds),  # so one core's time per run is cpu_seconds / runs_in_process
-                "update_seconds": round(self.update_seconds, 2),
-                "updates": self.updates,
+                "update_seconds": round(self.loop.update_seconds, 2),
+                "updates": self.loop.updates,
                 "transitions": self.transitions,
                 "final_coverage_last100": float(np.mean([r[self.column("coverage")] for r in self.rows[k][-100:]])),
             }
-            if self.best[k] is not None:
-                summary["selected_episode"] = self.best[k]["episode"]
-                summary["selected_validation_coverage"] = self.best[k]["coverage"]
+            if self.loop.kept[k] is not None:
+                summary["selected_episode"] = self.loop.kept[k]["episodes"]
+                summary["selected_validation_coverage"] = self.loop.kept[k]["score"]
             artifacts.write_json(out / "run.json", summary)
             (out / "checkpoint.pt").unlink(missing_ok=True)
             summaries.append(summary)
@@ -251,9 +234,7 @@ class Trainer:
         coverages = [float(c.mean()) for c in self._runs(env.coverage_fraction())]
         for k, coverage in enumerate(coverages):
             self.validation[k].append([episode, coverage])
-            if self.best[k] is None or coverage >= self.best[k]["coverage"]:
-                actor = run_stack.network_state(self.agent, "actor", k)
-                self.best[k] = {"episode": episode, "coverage": coverage, "actor": actor}
+            self.loop.keep(k, coverage, episode, lambda k=k: run_stack.network_state(self.agent, "actor", k))
         return coverages
 
     # ---- persistence: one folder per run, in the same form whatever the stack -------------------------------
@@ -272,21 +253,21 @@ class Trainer:
                 "format": CHECKPOINT_FORMAT,
                 "identity": self.identity(k),
                 "agent": run_stack.run_state(self.agent, k),
-                "buffer": self.buffers[k].state_dict(),
+                "buffer": self.loop.memories[k].state_dict(),
                 "rng": {
                     "env": self.env.rngs[k].bit_generator.state,
                     "noise": self.noise_rngs[k].bit_generator.state,
-                    "sample": self.sample_rngs[k].bit_generator.state,
+                    "sample": self.loop.sample_rngs[k].bit_generator.state,
                 },
                 "rows": self.rows[k],
                 "transitions": self.transitions,
-                "pending_updates": self.pending_updates,
+                "pending_updates": self.loop.pending_updates,
                 "wall": self.wall,
                 "cpu": self.cpu,
-                "updates": self.updates,
-                "update_seconds": self.update_seconds,
+                "updates": self.loop.updates,
+                "update_seconds": self.loop.update_seconds,
                 "validation": self.validation[k],
-                "best": self.best[k],
+                "best": self.loop.kept[k],
             }
             artifacts.torch_save(out / "checkpoint.pt", state)
 
@@ -307,16 +288,16 @@ class Trainer:
         for k, (path, state) in enumerate(states):
             try:
                 run_stack.load_run_state(self.agent, state["agent"], k)
-                self.buffers[k].load_state_dict(state["buffer"])
+                self.loop.memories[k].load_state_dict(state["buffer"])
                 self.env.rngs[k].bit_generator.state = state["rng"]["env"]
                 self.noise_rngs[k].bit_generator.state = state["rng"]["noise"]
-                self.sample_rngs[k].bit_generator.state = state["rng"]["sample"]
+                self.loop.sample_rngs[k].bit_generator.state = state["rng"]["sample"]
                 self.rows[k] = [list(r) for r in state["rows"]]
                 self.validation[k] = [list(r) for r in state["validation"]]
-                self.best[k] = state["best"]
-                self.transitions, self.pending_updates = int(state["transitions"]), float(state["pending_updates"])
-                self.updates = int(state["updates"])
-                self.wall, self.update_seconds = float(state["wall"]), float(state["update_seconds"])
+                self.loop.kept[k] = state["best"]
+                self.transitions = int(state["transitions"])
+                self.loop.pending_updates, self.loop.updates = float(state["pending_updates"]), int(state["updates"])
+                self.wall, self.loop.update_seconds = float(state["wall"]), float(state["update_seconds"])
                 # a checkpoint without CPU time counts its wall time, as its run's summary does
                 self.cpu = float(state.get("cpu", state["wall"]))
             except (KeyError, RuntimeError, ValueError, TypeError) as exc:
@@ -334,11 +315,12 @@ class Trainer:
                 "hidden": self.rc.algo.maddpg.hidden,
             }
             last = {**meta, "actor": run_stack.network_state(self.agent, "actor", k), "selected_episode": None}
-            if self.best[k] is None:
+            best = self.loop.kept[k]
+            if best is None:
                 artifacts.torch_save(out / "actors.pt", last)
                 continue
             artifacts.torch_save(out / "actors_last.pt", last)
-            kept = {**meta, "actor": self.best[k]["actor"], "selected_episode": self.best[k]["episode"]}
+            kept = {**meta, "actor": best["actor"], "selected_episode": best["episodes"]}
             artifacts.torch_save(out / "actors.pt", kept)
 
 
