@@ -305,7 +305,8 @@ def test_the_evaluation_suite_scores_every_cell(two_runs, tmp_path):
     runs = [{"seed": s, "policy": f"runs/general-s{s}/policy.pt"} for s in (4, 5)]
     (policies / "summary.json").write_text(json.dumps({"kept_seed": 5, "runs": runs}))
     raw = yaml.safe_load((ROOT / "params.yaml").read_text())
-    raw["general"]["suite"].update(held_out=1, named_fleets=[5], lake_fleets=[6], starts=["random"], episodes=2)
+    raw["general"]["suite"].update(test_lakes=1, real_lakes=[], named_fleets=[5], lake_fleets=[6], starts=["random"],
+                                   episodes=2)
     raw["regions"]["bedok"]["path"] = str(ROOT / raw["regions"]["bedok"]["path"])
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
     result = evaluate_general(str(tmp_path / "params.yaml"), str(policies), str(tmp_path / "g.json"), 1)

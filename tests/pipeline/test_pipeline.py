@@ -123,7 +123,8 @@ def test_dvc_repro_end_to_end(tmp_path):
     params["general"].update(regions=["square"], fleet=[6], lakes=1, lake_fleet=[5, 5], lake_ratio=[1.0, 1.0],
                              n_envs=4, episodes=8, episode_length=10, learning_starts=50, batch_size=16,
                              buffer_size=1000, update_every=8, seeds=[0, 1])
-    params["general"]["suite"].update(held_out=3, named_fleets=[5], lake_fleets=[6], starts=["random"], episodes=2)
+    params["general"]["suite"].update(test_lakes=3, real_lakes=[], named_fleets=[5], lake_fleets=[6],
+                                      starts=["random"], episodes=2)
     params["yardstick"].update(seeds=[2, 3], min_seeds=2)
     params["pipeline"]["configs"] = ["paper", "tuned"]
     params["pipeline"]["ablation"] = True  # the experiment `dvc exp run -S pipeline.ablation=true`, here in one go

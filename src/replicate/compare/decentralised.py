@@ -26,6 +26,7 @@ from replicate.core.studies import LloydConfig
 from replicate.world.env import CoverageEnv
 from replicate.world.sensors import neighbours
 
+
 class Raster:
     """The lake's raster: ``points`` [M, 2], grid points ``spacing`` apart inside the water, and ``index`` [GX, GY],
     each grid cell's point (−1 on land), whose cell (0, 0) is centred at ``origin``: the points near a position are

@@ -209,8 +209,9 @@ def general_baselines(params: Params, gains: dict | None, geodesic: bool = True,
     geodesic Lloyd with Lloyd's tuned gains, each tuned once on the policy's training worlds, never on the lake
     evaluated; without them, the paper's hand-set ``naive`` and ``lloyd`` and geodesic Lloyd with Lloyd's.
     ``geodesic`` False leaves geodesic Lloyd out (its paths through the water cost the most of the three),
-    ``naive`` False naive swarming; ``decentralised`` True adds decentralised Lloyd with Lloyd's gains
-    (``compare.decentralised``: the buoys heard and the water sensed, on the geodesic raster)."""
+    ``naive`` False naive swarming; ``decentralised`` True adds decentralised Lloyd with its own tuned gains
+    (Lloyd's where there are none; ``compare.decentralised``: the buoys heard and the water sensed, on the geodesic
+    raster)."""
     ev = params.evaluate
     if gains:
         naive_gains, lloyd = NaiveConfig(**gains["naive_tuned"]["gains"]), LloydConfig(
@@ -223,8 +224,10 @@ def general_baselines(params: Params, gains: dict | None, geodesic: bool = True,
         rivals = {names[0]: baselines.naive_swarming(naive_gains)} | rivals
     if geodesic:
         rivals["geodesic_lloyd"] = baselines.geodesic_lloyd(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)
-    if decentralised:
-        rivals["decentralised_lloyd"] = decentralised_lloyd(lloyd, ev.geodesic.spacing)
+    if decentralised:  # its own tuned gains where the study has them, else Lloyd's
+        own = (gains or {}).get("decentralised_tuned")
+        mine = LloydConfig(**own["gains"], converged_steps=ev.lloyd.converged_steps) if own else lloyd
+        rivals["decentralised_lloyd"] = decentralised_lloyd(mine, ev.geodesic.spacing)
     return rivals, how
 
 
@@ -313,6 +316,9 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
             out["baselines"][name]["gains"] = how
         if best_layout:
             out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
+        bound = coverage.coverage_ceiling(region.polygon.area, n_agents - lose, params.coverage.radius,
+                                          params.coverage.edges)  # min(1, N·A(Cov)/A(Reg)): no layout does better
+        out["baselines"]["upper_bound"] = {"coverage": {"mean": bound}, "buoys": n_agents - lose}
     lloyd = out["baselines"][lloyd_key]["coverage"]["mean"]
     out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None
     out["ratio_to_best"] = out["coverage"]["mean"] / best if best > 0 else None

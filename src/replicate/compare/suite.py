@@ -1,41 +1,71 @@
 """The general policy's evaluation suite: every lake × fleet × start × event it is read on.
 
-The lakes are the named regions (the square, the rectangle and Bedok) for the paper's 9 buoys, and the held-out
-generated lakes of ``lakes.held_out`` for their own N; a cell scales its lake to the fleet's density
-(``at_density``). The yardstick (``yardstick``) sizes its events as the suite does.
+Its lakes are of three kinds, never pooled in one number (``LakeKind``):
+
+* **trained**: the named regions the policy trains on (``general.regions``: the square and the rectangle);
+* **test**: ``general.suite.test_lakes`` generated lakes of the test stream (``lakes.test_stream``), a seed stream
+  that no choice of the training, the baselines or the report has read;
+* **real**: the other named regions (Bedok) and the lake files of ``general.suite.real_lakes`` (OpenStreetMap
+  reservoirs), each drawn for the paper's 9 buoys.
+
+The named regions run the fleets of ``named_fleets``, the others those of ``lake_fleets``; a cell scales its lake to
+the fleet's density (``at_density``). The yardstick (``yardstick``) sizes its events as the suite does; its lakes,
+the design lakes on which the training's values are chosen, are a fourth stream that the suite never reads.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+import zlib
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
 
+import numpy as np
 from shapely import affinity
 
-from replicate.world.lakes import held_out
-from replicate.world.regions import Region, make_region
+from replicate.world.lakes import test_stream
+from replicate.world.regions import Region, make_region, region_from_file
 from replicate.world.scenario import named_lakes
+
+LakeKind = Literal["trained", "test", "real"]
+KINDS: tuple[LakeKind, ...] = ("trained", "test", "real")
 
 
 @dataclass(frozen=True)
 class SuiteCell:
-    """One cell of the generalisation table: a lake (a named region or a held-out lake), a fleet, a start, an
-    event (``core.sections.EVENTS``: still water, a share of the fleet lost at T/2, a uniform drift)."""
+    """One cell of the generalisation table: a lake of a kind (``LakeKind``), a fleet, a start, an event
+    (``core.sections.EVENTS``: still water, a share of the fleet lost at T/2, a drift)."""
 
     region: str
     n_agents: int
     start: str
     event: str
+    kind: LakeKind = "test"
+
+
+def lake_kinds(params) -> dict[str, LakeKind]:
+    """{lake name: its kind} of the suite, in the suite's order: named regions, real lake files, test lakes."""
+    named = {name: "trained" if name in params.general.regions else "real" for name in params.regions}
+    files = {Path(path).stem: "real" for path in params.general.suite.real_lakes}
+    tests = {name: "test" for name in named_lakes(params, test_stream(params.general.suite.test_lakes))}
+    return named | files | tests
+
+
+def suite_lake(params, name: str) -> tuple[Region, int]:
+    """One lake of the suite → (region, the fleet it is drawn for)."""
+    if name in params.regions:
+        return make_region(name, params.regions[name], params.world.region_area), params.world.n_agents
+    for path in params.general.suite.real_lakes:
+        if Path(path).stem == name:
+            return region_from_file(path, name, params.world.region_area), params.world.n_agents
+    return named_lakes(params, test_stream(params.general.suite.test_lakes))[name]
 
 
 def suite_lakes(params) -> dict[str, tuple[Region, int]]:
-    """The suite's lakes → (region, the fleet it is drawn for): every region of ``regions`` (the square, the
-    rectangle and Bedok) for the paper's 9 buoys, then ``general.suite.held_out`` lakes of ``lakes.held_out`` for
-    their own N."""
-
-    named = {name: (make_region(name, params.regions[name], params.world.region_area), params.world.n_agents)
-             for name in params.regions}
-    return named | named_lakes(params, held_out(params.general.suite.held_out))
+    """Every lake of the suite → (region, the fleet it is drawn for)."""
+    return {name: suite_lake(params, name) for name in lake_kinds(params)}
 
 
 def at_density(region: Region, drawn_for: int, n_agents: int) -> Region:
@@ -48,9 +78,10 @@ def at_density(region: Region, drawn_for: int, n_agents: int) -> Region:
 def suite_cells(params) -> list[SuiteCell]:
     su = params.general.suite
     cells = []
-    for name in suite_lakes(params):
+    for name, kind in lake_kinds(params).items():
         fleets = su.named_fleets if name in params.regions else su.lake_fleets
-        cells += [SuiteCell(name, n, start, event) for n in fleets for start in su.starts for event in su.events]
+        cells += [SuiteCell(name, n, start, event, kind) for n in fleets for start in su.starts
+                  for event in su.events]
     return cells
 
 
@@ -59,7 +90,17 @@ def suite_lose(suite, n_agents: int) -> int:
     return max(1, int(n_agents * suite.lose_fraction))
 
 
-def suite_event(suite, event: str, n_agents: int) -> tuple[int, tuple[float, float] | None]:
-    """An event of ``EVENTS`` as (buoys lost at T/2, uniform current m/s or None), sized as ``suite`` sizes it."""
+def suite_event(suite, event: str, n_agents: int, heading: float = 0.0) -> tuple[int, tuple[float, float] | None]:
+    """An event of ``EVENTS`` as (buoys lost at T/2, uniform current m/s or None), sized as ``suite`` sizes it;
+    the drift flows toward ``heading`` (radians from +x)."""
     lose = suite_lose(suite, n_agents) if event == "lose" else 0
-    return lose, (suite.current, 0.0) if event == "current" else None
+    drift = (suite.current * math.cos(heading), suite.current * math.sin(heading))
+    return lose, drift if event == "current" else None
+
+
+def drift_heading(seed: int, cell: SuiteCell) -> float:
+    """The direction of a cell's drift, uniform on the circle, drawn from the evaluation seed and the cell (its
+    lake, fleet and start): the drift is not always along +x, where it would carry buoys released in the lower-left
+    corner along a long lake."""
+    key = zlib.crc32(f"{cell.region}/{cell.n_agents}/{cell.start}".encode())
+    return float(np.random.default_rng([seed, key]).uniform(0.0, 2.0 * math.pi))

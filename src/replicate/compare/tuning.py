@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from replicate.compare import baselines
+from replicate.compare.decentralised import decentralised_lloyd
 from replicate.compare.evaluate import actor_policy, rollout
 from replicate.core.executor import map_jobs, parallel_slots
 from replicate.core.params import Params, RegionKey, run_config, with_values
@@ -42,6 +43,7 @@ from replicate.learn.runs import TRAINING_VERSION
 from replicate.learn.train import load_actors, train_runs
 from replicate.learn.training_worlds import baseline_worlds
 from replicate.world import coverage
+from replicate.world.currents import random_current
 from replicate.world.geometry import region_key
 from replicate.world.regions import Region
 from replicate.world.scenario import evaluation_env, general_env, horizon
@@ -171,7 +173,15 @@ def budget(study) -> dict:
 def policy_with_gains(kind: str, gains: dict, params: Params) -> baselines.Policy:
     if kind == "naive":
         return baselines.naive_swarming(NaiveConfig(**gains))
-    return baselines.lloyd(LloydConfig(**gains, converged_steps=params.evaluate.lloyd.converged_steps))
+    lloyd = LloydConfig(**gains, converged_steps=params.evaluate.lloyd.converged_steps)
+    if kind == "decentralised":
+        return decentralised_lloyd(lloyd, params.evaluate.geodesic.spacing)
+    return baselines.lloyd(lloyd)
+
+
+def gain_space(params: Params, kind: str):
+    """The search of a baseline kind's gains: decentralised Lloyd searches Lloyd's space."""
+    return getattr(params.tuning.baselines, "lloyd" if kind == "decentralised" else kind)
 
 
 def baseline_coverage(kind: str, gains: dict, params: Params, region: Region, seed: int, episodes: int) -> float:
@@ -229,14 +239,22 @@ def general_worlds(params: Params) -> list:
 
 
 def general_baseline_coverage(kind: str, params: Params, gains: dict) -> float:
-    """Mean exact coverage at each world's evaluation horizon over every training world, half of the episodes
-    released in the corner patch and half scattered, starts drawn from ``tuning.starts_seed``."""
+    """Mean exact coverage (of the buoys in service) at each world's evaluation horizon over every training world:
+    half of the episodes released in the corner patch in still water, half scattered with the events the policy
+    trains on (world k even: ``general.lose_fraction`` of the fleet lost at T/2; odd: a random drift or vortex up
+    to ``general.current_speed``); starts and events drawn from ``tuning.starts_seed``."""
 
+    gc, seed = params.general, params.tuning.starts_seed
     policy, scores = policy_with_gains(kind, gains, params), []
     for k, (region, env) in enumerate(general_worlds(params)):
-        steps = horizon(params.general, region, params.world.region_area)
+        steps = horizon(gc, region, params.world.region_area)
         for start in ("corner", "random"):
-            live = rollout(env, policy, steps, params.tuning.starts_seed + k, StartsConfig(start))["live"]
+            lose = max(1, int(gc.lose_fraction * env.n_agents)) if start == "random" and k % 2 == 0 else 0
+            drift = start == "random" and k % 2 == 1
+            env.set_current(random_current(np.random.default_rng([seed, k]), env.n_envs, region.polygon,
+                                           gc.current_speed) if drift else None)
+            live = rollout(env, policy, steps, seed + k, StartsConfig(start, lose=lose))["live"]
+            env.set_current(None)
             scores.append(coverage.coverage_fraction(region.polygon, live, params.coverage.radius,
                                                     params.coverage.edges).mean())
     return float(np.mean(scores))
@@ -249,12 +267,12 @@ def general_baseline_score(kind: str, params: Params, gains: dict) -> tuple[floa
 
 
 def tune_general_baselines(params: Params, executor: str = "local", workers: int = 1, progress: bool = False) -> dict:
-    """Naive swarming's and Lloyd's studies on the general policy's training worlds →
-    ``{"naive_tuned": {gains, tuning_coverage, budget}, "lloyd_tuned": {...}}``.
+    """Naive swarming's, Lloyd's and decentralised Lloyd's studies on the general policy's training worlds →
+    ``{"naive_tuned": {gains, tuning_coverage, budget}, "lloyd_tuned": {...}, "decentralised_tuned": {...}}``.
 
-    Locally the two studies run side by side in ``workers`` processes, each one's trials in order (the same
-    trials as one process running both); with Ray each study spreads its trials over the cluster in turn."""
-    kinds = ("naive", "lloyd")
+    Locally the studies run side by side in ``workers`` processes, each one's trials in order (the same trials as
+    one process running them all); with Ray each study spreads its trials over the cluster in turn."""
+    kinds = ("naive", "lloyd", "decentralised")
     if executor == "local":
         open_storage(params.tuning.general_baselines.storage)  # its tables, before two processes open it
         results = map_jobs(functools.partial(general_study, params), kinds, "local", workers,
@@ -269,11 +287,12 @@ def general_study(params: Params, kind: str, executor: str = "local", progress: 
 
     tc, gb = params.tuning, params.tuning.general_baselines
     worlds = [(region_key(region.polygon), n) for region, n in baseline_worlds(params, params.general)]
-    search = getattr(tc.baselines, kind)
+    search = gain_space(params, kind)
+    events = (params.general.lose_fraction, params.general.current_speed)
     name = study_name(f"general-{kind}", search.space, tc.starts_seed, gb.starts, tc.sampler_seed, worlds,
-                      params.world, params.coverage, params.general.episode_length)
+                      params.world, params.coverage, params.general.episode_length, events)
     study = open_study(gb.storage, name, tc.sampler_seed)
-    trials = gb.naive_trials if kind == "naive" else gb.lloyd_trials
+    trials = getattr(gb, f"{kind}_trials")
     run_trials(study, functools.partial(general_baseline_score, kind, params), search.space, trials, executor,
                f"{kind}, every training world" if progress else None)
     return {"gains": dict(study.best_params), "tuning_coverage": study.best_value, **budget(study),

@@ -218,9 +218,10 @@ def check_starts(starts: tuple[str, ...], where: str) -> None:
 class SuiteConfig:
     """The general policy's evaluation suite (``compare.suite``): lakes × fleets × starts × events."""
 
-    held_out: Whole  # generated lakes of ``lakes.held_out``, never trained on
+    test_lakes: Whole  # generated lakes of ``lakes.test_stream``: a seed stream no choice has read
+    real_lakes: tuple[Text, ...]  # lake files (vector, any CRS), each at the paper's density for 9 buoys
     named_fleets: tuple[Fleet, ...]  # N on the square, the rectangle and Bedok (each at the paper's density)
-    lake_fleets: tuple[Fleet, ...]  # N on every held-out lake (each at its own density)
+    lake_fleets: tuple[Fleet, ...]  # N on every other lake (a test lake at its own density, a real one at 9's)
     starts: tuple[Text, ...]  # of ``START_KINDS``
     events: tuple[Text, ...]  # of ``EVENTS``, on every lake and fleet
     lose_fraction: Annotated[Num, In(0, 0.5, open_lo=True)]  # "lose": this share lost at T/2 (most of a fleet stays)

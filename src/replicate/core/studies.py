@@ -156,6 +156,7 @@ class GeneralBaselineSearch:
     starts: Count  # episodes per world and trial: half from the corner patch, half scattered
     naive_trials: Count
     lloyd_trials: Count
+    decentralised_trials: Count  # decentralised Lloyd (``compare.decentralised``), in Lloyd's space of gains
 
 
 @section
@@ -183,7 +184,8 @@ class GeneralTargets:
     of_best: Positive  # ... and of the best layout (and above naive_tuned)
     narrow_gap: NonNegative  # a lake where lloyd_tuned falls this far short of the best layout: the policy must beat it
     lose_of_lloyd: Positive  # after a loss: at least this fraction of what lloyd_tuned re-covers
-    current_of_still: Positive  # in the drift: at least this fraction of its own still-water coverage
+    current_of_lloyd: Positive  # in the drift: at least this fraction of lloyd_tuned in the same drift ...
+    current_of_still: Positive  # ... and of its own still-water coverage
 
 
 @section

@@ -11,7 +11,15 @@ from pathlib import Path
 import numpy as np
 
 from replicate.compare.evaluate import BASELINES, general_episode, lloyd_name
-from replicate.compare.suite import at_density, suite_lakes, suite_lose
+from replicate.compare.suite import (
+    SuiteCell,
+    at_density,
+    drift_heading,
+    lake_kinds,
+    suite_event,
+    suite_lake,
+    suite_lose,
+)
 from replicate.core.artifacts import read_curve
 from replicate.core.params import RegionKey, load_params
 from replicate.learn.runs import KEPT_POLICY
@@ -173,20 +181,19 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
 
 
 def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[Path]:
-    """The general policy, one evaluation episode each: on three held-out lakes from the suite's last start
-    (scattered by default; ``fig_general_lakes.png``), and as GIFs through a loss of a share of the fleet at T/2
-    (``anim_general_lose.gif``) and through a drift (``anim_general_current.gif``), on Bedok with the paper's
-    fleet."""
+    """The general policy, one evaluation episode each: on the real lakes of ``general.suite.real_lakes`` from the
+    suite's last start (scattered by default; ``fig_general_lakes.png``), and as GIFs through a loss of a share of
+    the fleet at T/2 (``anim_general_lose.gif``) and through the suite's drift of that cell
+    (``anim_general_current.gif``), on Bedok with the paper's fleet."""
 
     su, c = params.general.suite, params.coverage
     suite = {(x["region"], x["n_agents"], x["start"], x["event"]): x
              for x in json.loads(suite_path.read_text())["cells"]}
-    lakes = suite_lakes(params)
     n, start = max(su.lake_fleets), su.starts[-1]
-    held_out = sorted(name for name in lakes if name not in params.regions)[:3]
+    real = [name for name, kind in lake_kinds(params).items() if kind == "real" and name not in params.regions]
     panels = []
-    for name in held_out:
-        region = at_density(*lakes[name], n)
+    for name in real:
+        region = at_density(*suite_lake(params, name), n)
         trace, _ = general_episode(policy, region, params, n, start)
         cell = suite[(name, n, start, "none")]
         cover = coverage_fraction_exact(region.polygon, trace[-1][None], c.radius, c.edges)[0]
@@ -196,7 +203,7 @@ def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[P
             f"{name}\nN = {n}: coverage {cover:.2f} in this episode\nmean of {cell['coverage']['n']}: "
             f"{cell['coverage']['mean']:.3f}; {lloyd} {rival[lloyd]:.3f}, best layout {rival['best_layout']:.3f}")})
     written = [plots.general_lakes(panels, c.radius, c.edges, fig / "fig_general_lakes.png",
-                                   f"The general policy on held-out lakes it never trained on ({start} starts; "
+                                   f"The general policy on real lakes it never trained on ({start} starts; "
                                    "crosses: where the buoys started)")]
     bedok, buoys = make_region("bedok", params.regions["bedok"], params.world.region_area), params.world.n_agents
     lose = suite_lose(su, buoys)
@@ -204,7 +211,8 @@ def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[P
     written.append(animate_trace(bedok.polygon, trace, alive, c.radius, c.edges,
                                  f"general policy, Bedok, {lose} of {buoys} lost at T/2",
                                  fig / "anim_general_lose.gif"))
-    flow = (su.current, 0.0)
+    _, flow = suite_event(su, "current", buoys, drift_heading(params.evaluate.seed,
+                                                          SuiteCell("bedok", buoys, "random", "current", "real")))
     trace, alive = general_episode(policy, bedok, params, buoys, "random", current=flow)
     written.append(animate_trace(bedok.polygon, trace, alive, c.radius, c.edges, "general policy, Bedok, drift",
                                  fig / "anim_general_current.gif", flow=np.asarray(flow)))

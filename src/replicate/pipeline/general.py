@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from replicate.compare.evaluate import evaluate_policy
-from replicate.compare.suite import SuiteCell, at_density, suite_cells, suite_event, suite_lakes
+from replicate.compare.suite import SuiteCell, at_density, drift_heading, suite_cells, suite_event, suite_lake
 from replicate.core import artifacts
 from replicate.core.executor import map_jobs
 from replicate.core.params import load_params
@@ -106,16 +106,17 @@ def _suite_lake(job: dict) -> list[dict]:
     params = load_params(job["params"])
     su = params.general.suite
     params = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=su.episodes))
-    region, drawn_for = suite_lakes(params)[job["region"]]
+    region, drawn_for = suite_lake(params, job["region"])
     region = at_density(region, drawn_for, job["n_agents"])
     kept, *others = job["policies"].items()  # the kept seed's, then the others'
     out = []
     for cell in map(lambda c: SuiteCell(**c), job["cells"]):
-        lose, current = suite_event(su, cell.event, cell.n_agents)
+        lose, current = suite_event(su, cell.event, cell.n_agents, drift_heading(params.evaluate.seed, cell))
         result = evaluate_policy(kept[1], region, params, cell.n_agents, cell.start, lose, current,
-                                 seeds=dict(others))
+                                 seeds=dict(others), decentralised=True)
         seeds = {kept[0]: {k: result[k] for k in ("coverage", "max_outside_m")}, **result.get("seeds", {})}
-        out.append({**dataclasses.asdict(cell), "lose": lose, "coverage": result["coverage"], "seeds": seeds,
+        out.append({**dataclasses.asdict(cell), "lose": lose, "current": result["current"],
+                    "coverage": result["coverage"], "seeds": seeds,
                     "baselines": result["baselines"], "max_outside_m": result["max_outside_m"],
                     "steps": result["steps"]})
     return out

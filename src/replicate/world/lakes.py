@@ -5,9 +5,10 @@ shore outwards) and islands (small blobs cut out well inside), scaled so that N 
 ``ratio`` of its area: N·A(Cov)/A(Reg) from about 0.5 (more water than the fleet can cover) to 1.2 (more fleet
 than water). Every draw comes from the ``numpy.random.Generator`` of the lake's seed, so a seed is a lake.
 
-``held_out`` is the evaluation suite's fixed set of lakes, ``training`` the training set and ``yardstick`` the lakes
-on which two versions of a training are compared; each comes from a seed stream of its own (``HELD_OUT_ENTROPY``,
-``TRAINING_ENTROPY``, ``YARDSTICK_ENTROPY``), so no held-out lake is trained on or chosen on.
+``training`` is the training set, ``yardstick`` the design lakes on which two versions of a training are compared,
+``test_stream`` the evaluation suite's test lakes and ``held_out`` the lakes the suite read while the general
+training was designed; each comes from a seed stream of its own (``TRAINING_ENTROPY``, ``YARDSTICK_ENTROPY``,
+``TEST_ENTROPY``, ``HELD_OUT_ENTROPY``), so no test lake is trained on or chosen on.
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ from shapely.geometry.polygon import orient
 
 from replicate.world.regions import Region
 
-HELD_OUT_ENTROPY = 20_261_018  # the held-out lakes' seed stream
+HELD_OUT_ENTROPY = 20_261_018  # the held-out lakes' seed stream (read while the general training was designed)
+TEST_ENTROPY = 58_302_911  # the test lakes' seed stream: drawn after every choice, read by the report alone
 YARDSTICK_ENTROPY = 41_170_093  # the yardstick's seed stream: choices between trainings are made here
 TRAINING_ENTROPY = 7_310_442  # the training lakes' seed stream: the same lakes for every seed of a training
 VERTICES = 96  # of a blob's outline
@@ -129,6 +131,14 @@ def lake_region(spec: LakeSpec, coverage_area: float) -> Region:
 def held_out(count: int = 20, **draw) -> list[LakeSpec]:
     """The evaluation suite's generated lakes: ``count`` recipes from the held-out stream, the same every time."""
     rng = np.random.default_rng(np.random.SeedSequence(HELD_OUT_ENTROPY))
+    return [draw_spec(rng, **draw) for _ in range(count)]
+
+
+def test_stream(count: int = 20, **draw) -> list[LakeSpec]:
+    """The evaluation suite's test lakes: ``count`` recipes from the test stream, which no choice of the general
+    training, its baselines' gains or the report's rules has read (the held-out lakes were, while the training
+    was designed)."""
+    rng = np.random.default_rng(np.random.SeedSequence(TEST_ENTROPY))
     return [draw_spec(rng, **draw) for _ in range(count)]
 
 

@@ -1,13 +1,34 @@
 """The general policy's section: its suite's cells against the bars of ``report.general``, every seed and the
-baselines, as Markdown rows."""
+baselines, as Markdown rows, the lakes of each kind (``compare.suite.LakeKind``) apart."""
 
 from __future__ import annotations
 
+import numpy as np
+from scipy import stats
+
+from replicate.compare.suite import KINDS
 from replicate.core.params import Cell, run_config
 from replicate.core.sections import EVENTS
 from replicate.pipeline.report.rules import fmt
 
-YARDSTICKS = ("naive_tuned", "lloyd_tuned", "geodesic_lloyd", "best_layout")
+# the comparisons of every cell, by what each one knows (``INFORMATION``)
+YARDSTICKS = ("naive_tuned", "decentralised_lloyd", "lloyd_tuned", "geodesic_lloyd", "best_layout", "upper_bound")
+INFORMATION = {
+    "general policy": "its own sensors: the buoys it hears within the communication range, rays to the shore",
+    "naive_tuned": "the positions of every buoy (the swarm's centre), not the map",
+    "decentralised_lloyd": "what the policy knows: the buoys it hears, the water its rays have swept",
+    "lloyd_tuned": "the map and every buoy (clairvoyant)",
+    "geodesic_lloyd": "the map and every buoy, cells and paths through the water (clairvoyant)",
+    "best_layout": "the map, no physics and no time: a layout searched offline (a heuristic, not a bound)",
+    "upper_bound": "min(1, N·A(Cov)/A(Reg)): no layout covers more",
+}
+KIND_TITLE = {"trained": "trained on (the training worlds)", "test": "test lakes (generated, a stream no choice read)",
+              "real": "real lakes (Bedok and OpenStreetMap reservoirs, never trained on)"}
+
+
+def kind_of(params, c: dict) -> str:
+    """A cell's lake kind; a cell written without one is a trained-on region or a generated lake."""
+    return c.get("kind") or ("trained" if c["region"] in params.general.regions else "test")
 
 
 def seed_coverages(cell: dict) -> dict[str, float]:
@@ -17,21 +38,24 @@ def seed_coverages(cell: dict) -> dict[str, float]:
     return {label: r["coverage"]["mean"] for label, r in seeds.items()}
 
 
-def one_seed(cells: list[dict], label: str) -> list[dict]:
-    """The suite's cells as if ``label`` were the only seed."""
-    return [{**c, "coverage": c["seeds"][label]["coverage"], "max_outside_m": c["seeds"][label]["max_outside_m"],
-             "seeds": {label: c["seeds"][label]}} for c in cells]
+def over_seeds(values: list[float], level: float = 0.95) -> str:
+    """mean [interval] over training seeds, the seed as the unit: Student's t (the percentile bootstrap keeps a
+    null difference too often at fewer than 10 seeds); the range with one seed alone."""
+    v = np.asarray(values, float)
+    if len(v) < 2:
+        return f"{v.mean():.3f}"
+    half = stats.t.ppf(0.5 + level / 2, len(v) - 1) * v.std(ddof=1) / np.sqrt(len(v))
+    return f"{v.mean():.3f} [{v.mean() - half:.3f}, {v.mean() + half:.3f}]"
 
 
-def still_ratios(cells: list[dict]) -> list[float]:
-    """Coverage / lloyd_tuned's of every still-water cell (the cells' own policy)."""
-    return [c["coverage"]["mean"] / c["baselines"]["lloyd_tuned"]["coverage"]["mean"] for c in cells
+def still_ratios(cells: list[dict], seed: str) -> list[float]:
+    """Seed ``seed``'s coverage / lloyd_tuned's of every still-water cell."""
+    return [c["seeds"][seed]["coverage"]["mean"] / c["baselines"]["lloyd_tuned"]["coverage"]["mean"] for c in cells
             if c["event"] == "none"]
 
 
-def general_verdicts(cells: list[dict], t) -> list[tuple[str, str, str]]:
-    """(bar, how many cells meet it, verdict) of the general policy's targets (``report.general``, ``t``): a cell
-    meets a bar when every seed's policy does."""
+def general_checks(cells: list[dict], t) -> list[tuple[str, list[dict], list[bool]]]:
+    """(bar, the cells it applies to, whether each meets it with every seed) of ``report.general`` (``t``)."""
     def rival(c, name):
         return c["baselines"][name]["coverage"]["mean"]
 
@@ -42,29 +66,55 @@ def general_verdicts(cells: list[dict], t) -> list[tuple[str, str, str]]:
     key = {(c["region"], c["n_agents"], c["start"]): seed_coverages(c) for c in still}
 
     def keeps(c, share) -> bool:  # each seed against its own still-water coverage
-        own = key[(c["region"], c["n_agents"], c["start"])]
-        return all(v >= share * own[s] for s, v in seed_coverages(c).items())
+        own = key.get((c["region"], c["n_agents"], c["start"]), {})
+        return all(s in own and v >= share * own[s] for s, v in seed_coverages(c).items())
 
-    checks = [
+    lose, drift = [c for c in cells if c["event"] == "lose"], [c for c in cells if c["event"] == "current"]
+    narrow = [c for c in still if rival(c, "best_layout") - rival(c, "lloyd_tuned") >= t.narrow_gap]
+    return [
         (f"still water: ≥ {t.of_lloyd:.0%} of lloyd_tuned", still,
          [every_seed(c, lambda v, c=c: v >= t.of_lloyd * rival(c, "lloyd_tuned")) for c in still]),
-        ("still water: above naive_tuned", still,
-         [every_seed(c, lambda v, c=c: v > rival(c, "naive_tuned")) for c in still]),
+        ("still water: above naive_tuned", still, [every_seed(c, lambda v, c=c: v > rival(c, "naive_tuned"))
+                                                   for c in still]),
         (f"still water: ≥ {t.of_best:.0%} of the best layout", still,
          [every_seed(c, lambda v, c=c: v >= t.of_best * rival(c, "best_layout")) for c in still]),
-        (f"lakes where lloyd_tuned is ≥ {t.narrow_gap} below the best layout: above lloyd_tuned",
-         narrow := [c for c in still if rival(c, "best_layout") - rival(c, "lloyd_tuned") >= t.narrow_gap],
+        (f"lakes where lloyd_tuned is ≥ {t.narrow_gap} below the best layout: above lloyd_tuned", narrow,
          [every_seed(c, lambda v, c=c: v > rival(c, "lloyd_tuned")) for c in narrow]),
-        (f"buoys lost at T/2: ≥ {t.lose_of_lloyd:.0%} of what lloyd_tuned re-covers",
-         lose := [c for c in cells if c["event"] == "lose"],
+        (f"buoys lost at T/2: ≥ {t.lose_of_lloyd:.0%} of what lloyd_tuned re-covers", lose,
          [every_seed(c, lambda v, c=c: v >= t.lose_of_lloyd * rival(c, "lloyd_tuned")) for c in lose]),
-        (f"drift: ≥ {t.current_of_still:.0%} of its own still-water coverage",
-         drift := [c for c in cells if c["event"] == "current"], [keeps(c, t.current_of_still) for c in drift]),
-        ("no buoy ever outside the water", cells,
-         [all(r["max_outside_m"] == 0 for r in (c.get("seeds") or {"kept": c}).values()) for c in cells]),
+        (f"drift: ≥ {t.current_of_lloyd:.0%} of lloyd_tuned in the same drift", drift,
+         [every_seed(c, lambda v, c=c: v >= t.current_of_lloyd * rival(c, "lloyd_tuned")) for c in drift]),
+        (f"drift: ≥ {t.current_of_still:.0%} of its own still-water coverage", drift,
+         [keeps(c, t.current_of_still) for c in drift]),
     ]
-    return [(bar, f"{sum(ok)} of {len(which)}", "met" if all(ok) else "not met") for bar, which, ok in checks
-            if which]
+
+
+def general_verdicts(cells: list[dict], t) -> list[tuple[str, str, str]]:
+    """(bar, how many cells meet it, verdict) of the general policy's targets: a cell meets a bar when every
+    seed's policy does."""
+    return [(bar, f"{sum(ok)} of {len(which)}", "met" if all(ok) else "not met")
+            for bar, which, ok in general_checks(cells, t) if which]
+
+
+def bar_table(params, cells: list[dict]) -> list[str]:
+    """The bars of ``report.general``: cells meeting each with every seed, per lake kind; the verdict reads the
+    lakes never trained on (test and real) together."""
+    t = params.report.general
+    kinds = {k: [c for c in cells if kind_of(params, c) == k] for k in KINDS}
+    per_kind = {k: {bar: (ok, which) for bar, which, ok in general_checks(group, t)} for k, group in kinds.items()}
+    unseen = [c for c in cells if kind_of(params, c) != "trained"]
+    rows = ["| bar (`report.general`) | " + " | ".join(KIND_TITLE[k].split(" (")[0] for k in KINDS)
+            + " | verdict (test and real lakes) |", "|---|" + "---|" * (len(KINDS) + 1)]
+    for bar, _, verdict in general_verdicts(unseen, t):
+        counts = [f"{sum(per_kind[k][bar][0])} of {len(per_kind[k][bar][1])}" if bar in per_kind[k] else "—"
+                  for k in KINDS]
+        rows.append(f"| {bar} | " + " | ".join(counts) + f" | **{verdict}** |")
+    seeds = sorted({s for c in unseen for s in c.get("seeds", {})})
+    if seeds and all(set(c.get("seeds", {})) == set(seeds) for c in unseen):
+        ratios = {s: still_ratios(unseen, s) for s in seeds}
+        rows += ["", "Still water on the test and real lakes, coverage / lloyd_tuned per seed: " + "; ".join(
+            f"{s} mean {np.mean(r):.3f}, worst {min(r):.3f}" for s, r in ratios.items()) + "."]
+    return rows
 
 
 def per_region_cr(params, summary: dict, c: dict) -> str:
@@ -85,80 +135,83 @@ def per_region_cr(params, summary: dict, c: dict) -> str:
     return text if steps == c.get("steps") else f"{text} (T = {steps})"
 
 
-def general_rows(params, cells: list[dict], summary: dict) -> list[str]:
-    """Markdown rows: every cell of the named regions, then the held-out lakes pooled per fleet, start and event
-    (mean over lakes, and the worst lake's ratio to lloyd_tuned). The general policy's column is the kept seed's (its
-    interval over episodes); the next gives the range over every seed (over seeds of the mean over lakes); then
-    the per-region `tuned` CR-MARL where ``summary`` has it (``per_region_cr``)."""
-    def row(label, n, start, event, general, seeds, cr, rivals, ratio):
-        return (f"| {label} | {n} | {start} | {event} | {general} | {min(seeds):.3f}-{max(seeds):.3f} | {cr} | "
-                + " | ".join(f"{v:.3f}" for v in rivals) + f" | {ratio} |")
+def rivals_of(c: dict) -> list[float]:
+    return [c["baselines"][k]["coverage"]["mean"] if k in c["baselines"] else float("nan") for k in YARDSTICKS]
 
-    rows = []
+
+def row(label, n, start, event, general: str, seeds: list[float], cr: str, rivals: list[float], ratio: str) -> str:
+    return (f"| {label} | {n} | {start} | {event} | {general} | {over_seeds(seeds)} | {cr} | "
+            + " | ".join("—" if v != v else f"{v:.3f}" for v in rivals) + f" | {ratio} |")
+
+
+def cell_rows(params, cells: list[dict], summary: dict) -> list[str]:
+    """One row per cell: the deployed policy (its interval over episodes), the seeds (mean and interval over
+    seeds), the per-region `tuned` CR-MARL where ``summary`` has it, the comparisons, seeds / lloyd_tuned."""
+    out = []
     for c in cells:
-        if c["region"] in params.regions:
-            rivals = [c["baselines"][k]["coverage"]["mean"] for k in YARDSTICKS]
-            rows.append(row(c["region"], c["n_agents"], c["start"], c["event"], fmt(c["coverage"]),
-                            list(seed_coverages(c).values()), per_region_cr(params, summary, c),
-                            rivals, f"{c['coverage']['mean'] / rivals[1]:.3f}"))
-    lakes: dict[tuple, list[dict]] = {}
+        seeds, rivals = list(seed_coverages(c).values()), rivals_of(c)
+        out.append(row(c["region"], c["n_agents"], c["start"], c["event"], fmt(c["coverage"]), seeds,
+                       per_region_cr(params, summary, c), rivals, f"{np.mean(seeds) / rivals[2]:.3f}"))
+    return out
+
+
+def pooled_rows(cells: list[dict]) -> list[str]:
+    """The test lakes pooled per fleet, start and event: means over lakes (the deployed policy's range over
+    lakes), the seeds' interval over seeds of their mean over lakes, the worst lake's ratio to lloyd_tuned."""
+    groups: dict[tuple, list[dict]] = {}
     for c in cells:
-        if c["region"] not in params.regions:
-            lakes.setdefault((c["n_agents"], c["start"], c["event"]), []).append(c)
-    for (n, start, event), group in sorted(lakes.items(), key=lambda kv: (*kv[0][:2], EVENTS.index(kv[0][2]))):
+        groups.setdefault((c["n_agents"], c["start"], c["event"]), []).append(c)
+    out = []
+    for (n, start, event), group in sorted(groups.items(), key=lambda kv: (*kv[0][:2], EVENTS.index(kv[0][2]))):
         general = [c["coverage"]["mean"] for c in group]
         per_seed = [seed_coverages(c) for c in group]
-        seeds = [sum(p[s] for p in per_seed) / len(group) for s in per_seed[0]]
-        rivals = [sum(c["baselines"][k]["coverage"]["mean"] for c in group) / len(group) for k in YARDSTICKS]
-        ratios = [c["coverage"]["mean"] / c["baselines"]["lloyd_tuned"]["coverage"]["mean"] for c in group]
-        rows.append(row(f"{len(group)} held-out lakes (mean)", n, start, event,
-                        f"{sum(general) / len(general):.3f} ({min(general):.3f}-{max(general):.3f})", seeds, "—",
-                        rivals,
-                        f"{sum(ratios) / len(ratios):.3f} (worst {min(ratios):.3f})"))
-    return rows
+        seeds = [float(np.mean([p[s] for p in per_seed])) for s in per_seed[0]]
+        ratios = [np.mean(list(p.values())) / c["baselines"]["lloyd_tuned"]["coverage"]["mean"]
+                  for p, c in zip(per_seed, group)]
+        out.append(row(f"{len(group)} test lakes (mean)", n, start, event,
+                       f"{np.mean(general):.3f} ({min(general):.3f}-{max(general):.3f})", seeds, "—",
+                       list(np.nanmean([rivals_of(c) for c in group], axis=0)),
+                       f"{np.mean(ratios):.3f} (worst {min(ratios):.3f})"))
+    return out
 
 
-def bar_table(cells: list[dict], t, seeds: list[str]) -> list[str]:
-    """The bars of ``report.general`` (``t``): cells meeting each with every seed (the verdict), then with each
-    seed alone; and each seed's mean and worst ratio to lloyd_tuned in still water."""
-    per_seed = [general_verdicts(one_seed(cells, s), t) for s in seeds] if all("seeds" in c for c in cells) else []
-    head = "| bar (`report.general`) | cells meeting it, every seed | verdict |" + "".join(
-        f" {s} alone |" for s in seeds[:len(per_seed)])
-    rows = [head, "|---|---|---|" + "---|" * len(per_seed)]
-    for k, (bar, n, v) in enumerate(general_verdicts(cells, t)):
-        rows.append(f"| {bar} | {n} | **{v}** |" + "".join(f" {seed[k][1]} |" for seed in per_seed))
-    if per_seed:
-        ratios = {s: still_ratios(one_seed(cells, s)) for s in seeds}
-        rows += ["", "Still water, coverage / lloyd_tuned per seed: " + "; ".join(
-            f"{s} mean {sum(r) / len(r):.3f}, worst {min(r):.3f}" for s, r in ratios.items()) + "."]
-    return rows
+def general_tables(params, cells: list[dict], summary: dict) -> list[str]:
+    """One table per lake kind: every cell of the trained-on and the real lakes, the test lakes pooled."""
+    head = ("| lake | N | start | event | general policy (deployed) | seeds: mean [95 % CI over seeds] | tuned CR | "
+            "naive_tuned | decentralised Lloyd | lloyd_tuned | geodesic Lloyd | best layout | upper bound | "
+            "seeds / lloyd_tuned |")
+    lines = []
+    for kind in KINDS:
+        group = [c for c in cells if kind_of(params, c) == kind]
+        if group:
+            lines += [f"**{KIND_TITLE[kind][0].upper()}{KIND_TITLE[kind][1:]}**", "", head, "|" + "---|" * 14,
+                      *(pooled_rows(group) if kind == "test" else cell_rows(params, group, summary)), ""]
+    return lines
 
 
 def general_section(params, general: dict, summary: dict | None = None) -> list[str]:
-    cells, t = general["cells"], params.report.general
+    cells = general["cells"]
     su = params.general.suite
-    seeds = ", ".join(general.get("seeds", [])) or "one"
+    seeds = general.get("seeds", [])
     said = {"none": "still water", "lose": f"{su.lose_fraction:.0%} of the fleet lost at T/2 (coverage of the rest "
-            "at T)", "current": f"a uniform drift of {su.current} m/s"}
-    turned = (", its actor averaged over the compass's quarter turns and mirrors, `general.learner.symmetry`"
-              if params.general.learner.symmetry != "none" else "")
+            "at T)", "current": f"a uniform drift of {su.current} m/s, its heading drawn per cell"}
     lines = ["## One policy for every lake", "",
-             f"The general policy (`{general['policy']}`, one network trained once on the training worlds of "
-             f"`general`, local sensors only{turned}), zero-shot on lakes it never trained on, behind the shore "
-             f"wall: the square, the rectangle and Bedok at N ∈ {list(su.named_fleets)} (each at the paper's density), "
-             f"{su.held_out} held-out generated lakes at N ∈ {list(su.lake_fleets)} (each at its own density); "
-             "starts in the corner patch or scattered; on every lake and fleet: "
-             f"{', '.join(said[e] for e in su.events)}. {su.episodes} episodes per cell from the evaluation seed. "
-             "The general policy's column is the deployed policy (the best-validated seed) with its interval over "
-             "episodes; "
-             f"\"every seed\" is the range over the trained seeds ({seeds}), and a cell meets a bar only when "
-             "every seed does. naive_tuned and lloyd_tuned carry the gains tuned once on the "
-             "training worlds (`tuning.general_baselines`), geodesic Lloyd Lloyd's; the best layout is the "
-             "offline limit for the buoys in service. \"tuned CR\" is the per-region `tuned` CR-MARL of the "
-             "robustness table (its own training physics, not the wall; mean [CI] over its seeds), where a "
-             "scenario matches.", "",
-             *bar_table(cells, t, general.get("seeds", [])), "",
-             "| lake | N | start | event | general policy | every seed | tuned CR | naive_tuned | lloyd_tuned | "
-             "geodesic Lloyd | best layout | general / lloyd_tuned |", "|" + "---|" * 12,
-             *general_rows(params, cells, summary or {}), ""]
+             f"The general policy (`{general['policy']}`, one network trained on the training worlds of `general`, "
+             f"local sensors only, the compass symmetry `{params.general.learner.symmetry}`) on three kinds of "
+             f"lakes, never pooled: the two it trains on (the square and the rectangle, N ∈ "
+             f"{list(su.named_fleets)} at the paper's density), {su.test_lakes} generated test lakes of a seed "
+             f"stream that no choice read (N ∈ {list(su.lake_fleets)}, each at its own density), and real lakes, "
+             f"zero-shot: Bedok (N ∈ {list(su.named_fleets)}) and {len(su.real_lakes)} OpenStreetMap reservoirs "
+             f"(N ∈ {list(su.lake_fleets)}). Starts in the corner patch or scattered; "
+             f"{', '.join(said[e] for e in su.events)}; {su.episodes} episodes per cell from the evaluation seed, "
+             "behind the shore wall (no buoy can leave the water: a property of the wall, not a result).", "",
+             f"The seed is the unit: {len(seeds) or 1} trained seeds ({', '.join(seeds) or 'one'}), each exported; a "
+             "cell meets a bar only when every seed does. The deployed policy (the best-validated seed) is shown "
+             "with its interval over episodes. What each controller knows:", "",
+             *[f"- {name}: {what}" for name, what in INFORMATION.items()], "",
+             "naive_tuned, lloyd_tuned and decentralised Lloyd carry gains tuned once on the training worlds with "
+             "the training's losses and drifts (`tuning.general_baselines`), geodesic Lloyd Lloyd's. \"tuned CR\" "
+             "is the per-region `tuned` CR-MARL of the robustness table (trained on that region, its own physics, "
+             "mean [CI] over its seeds), where a scenario matches.", "",
+             *bar_table(params, cells), "", *general_tables(params, cells, summary or {})]
     return lines
