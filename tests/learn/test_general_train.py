@@ -116,12 +116,15 @@ def test_a_general_policy_runs_zero_shot_on_a_lake_the_repo_does_not_ship(two_ru
         cov = result["coverage"]
         assert 0 <= cov["lo"] <= cov["mean"] <= cov["hi"] <= 1 and cov["n"] == 8 and result["n_agents"] == n
         assert result["lose"] == (5 if n == 20 else 0) and result["max_outside_m"] == 0.0
-        assert set(result["baselines"]) == rivals | {"best_layout"} | ({"geodesic_lloyd"} if n == 20 else set())
+        limits = {"best_layout", "upper_bound"}
+        assert set(result["baselines"]) == rivals | limits | ({"geodesic_lloyd"} if n == 20 else set())
         lloyd = result["baselines"][sorted(rivals)[0]]["coverage"]["mean"]
         assert result["ratio_to_lloyd"] == pytest.approx(cov["mean"] / lloyd)
-        best = result["baselines"]["best_layout"]
-        assert best["buoys"] == n - (5 if n == 20 else 0)
-        assert max(b["coverage"]["mean"] for b in result["baselines"].values()) <= best["coverage"]["mean"] + 0.01
+        best, bound = result["baselines"]["best_layout"], result["baselines"]["upper_bound"]
+        assert best["buoys"] == bound["buoys"] == n - (5 if n == 20 else 0)
+        found = [b["coverage"]["mean"] for k, b in result["baselines"].items() if k not in limits]
+        assert max(found) <= best["coverage"]["mean"] + 0.01 <= bound["coverage"]["mean"] + 0.01
+        assert cov["mean"] <= bound["coverage"]["mean"]  # the bound is above every method
 
 
 @pytest.mark.slow
@@ -161,7 +164,7 @@ def test_cover_uses_the_general_policy_zero_shot_and_fine_tuned(two_runs, tmp_pa
     assert "general policy, zero-shot: coverage" in zero.stdout.read()
     summary = json.loads((tmp_path / "zero" / "summary.json").read_text())
     assert summary["n_agents"] == 6 and summary["finetune_episodes"] == 0 and summary["max_outside_m"] == 0.0
-    assert set(summary["baselines"]) == {"naive", "lloyd", "best_layout"}
+    assert set(summary["baselines"]) == {"naive", "lloyd", "best_layout", "upper_bound"}
     assert summary["coverage"]["mean"] <= summary["baselines"]["best_layout"]["coverage"]["mean"] + 0.01
     layers, episode = check_field_files(tmp_path / "zero", "episode")
     assert set(layers["tracks"].method) == {"general policy", "lloyd", "decentralised_lloyd"}
@@ -316,9 +319,13 @@ def test_the_evaluation_suite_scores_every_cell(two_runs, tmp_path):
 
     assert len(cells) == len(suite_cells(load_params(tmp_path / "params.yaml"))) == 4 * len(EVENTS)  # 3 named, 1 new
     assert cells[("square", 5, "lose")]["lose"] == 1 and cells[("bedok", 5, "current")]["lose"] == 0
+    kinds = {c["region"]: c["kind"] for c in result["cells"]}
+    assert kinds["square"] == "trained" and kinds["bedok"] == "real" and sum(k == "test" for k in kinds.values()) == 1
     for c in result["cells"]:
-        best = c["baselines"]["best_layout"]["coverage"]["mean"]
+        found = {k: b["coverage"]["mean"] for k, b in c["baselines"].items()}
+        bound, best = found.pop("upper_bound"), found["best_layout"]
         assert c["max_outside_m"] == 0.0 and c["coverage"]["n"] == 2
         assert c["seeds"]["s5"]["coverage"] == c["coverage"] == c["seeds"]["s4"]["coverage"]  # the same weights
-        assert all(b["coverage"]["mean"] <= best + 0.01 for b in c["baselines"].values())
+        assert "decentralised_lloyd" in found and max(found.values()) <= best + 0.01
+        assert max(best, c["coverage"]["mean"]) <= bound  # the bound holds every method and the best layout
     assert json.loads((tmp_path / "g.json").read_text())["cells"] == result["cells"]
