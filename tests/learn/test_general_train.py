@@ -93,7 +93,8 @@ def test_a_general_policy_runs_zero_shot_on_a_lake_the_repo_does_not_ship(two_ru
 
     out, _ = two_runs
     gains = {"naive_tuned": {"gains": {"attraction": 8.0, "avoid_range": 1.0, "avoidance": 10.0, "damping": 0.1}},
-             "lloyd_tuned": {"gains": {"gain": 50.0, "damping": 0.2}}}
+             "lloyd_tuned": {"gains": {"gain": 50.0, "damping": 0.2}},
+             "decentralised_tuned": {"gains": {"gain": 40.0, "damping": 0.0}}}
     (tmp_path / "gains.json").write_text(json.dumps(gains))
     assert cli("export", str(out / "run0"), "--out", str(tmp_path / "general.pt")).wait(timeout=300) == 0
     assert cli("export", str(out / "run0"), "--out", str(tmp_path / "carrying.pt"), "--baseline-gains",
@@ -195,14 +196,15 @@ def test_the_pipeline_keeps_the_best_validated_seed_and_skips_finished_ones(tmp_
     raw["regions"]["bedok"]["path"] = str(ROOT / raw["regions"]["bedok"]["path"])
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
     gains = {"naive_tuned": {"gains": {"attraction": 8.0, "avoid_range": 1.0, "avoidance": 10.0, "damping": 0.1}},
-             "lloyd_tuned": {"gains": {"gain": 50.0, "damping": 0.2}}}
+             "lloyd_tuned": {"gains": {"gain": 50.0, "damping": 0.2}},
+             "decentralised_tuned": {"gains": {"gain": 40.0, "damping": 0.0}}}
     (tmp_path / "gains.json").write_text(json.dumps(gains))
     first = train_general(str(tmp_path / "params.yaml"), str(tmp_path / "policies"), str(tmp_path / "gains.json"), 1)
     scores = {r["seed"]: r["selected_validation_coverage"] for r in first["runs"]}
     assert first["kept_seed"] == max(scores, key=scores.get) and not any(r["skipped"] for r in first["runs"])
     _, meta = load_policy(tmp_path / "policies" / "general.pt")
     assert meta["n_agents"] == "any" and meta["trained"]["seed"] == first["kept_seed"]
-    assert meta["baseline_gains"]["lloyd_tuned"]["gains"] == gains["lloyd_tuned"]["gains"]
+    assert {k: v["gains"] for k, v in meta["baseline_gains"].items()} == {k: v["gains"] for k, v in gains.items()}
     for run in first["runs"]:  # every seed exported; the deployed file is the kept seed's
         assert load_policy(tmp_path / "policies" / run["policy"])[1]["trained"]["seed"] == run["seed"]
     kept = tmp_path / "policies" / "runs" / f"general-s{first['kept_seed']}" / "policy.pt"
@@ -245,7 +247,8 @@ def test_the_standing_baseline_is_read_by_compare_only_while_params_match_it(tmp
 
     params = write(raw)
     gains = {"naive_tuned": {"gains": {"attraction": 8.0, "avoid_range": 1.0, "avoidance": 10.0, "damping": 0.1}},
-             "lloyd_tuned": {"gains": {"gain": 50.0, "damping": 0.2}}}
+             "lloyd_tuned": {"gains": {"gain": 50.0, "damping": 0.2}},
+             "decentralised_tuned": {"gains": {"gain": 40.0, "damping": 0.0}}}
     (tmp_path / "gains.json").write_text(json.dumps(gains))
     folder = tmp_path / "yardstick"
     with pytest.raises(ConfigError, match="no standing baseline here"):

@@ -314,15 +314,19 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
                                                   {lloyd_key: aside} if aside else {}, phase)
         for name in rivals:
             out["baselines"][name]["gains"] = how
-        if best_layout:
-            out["baselines"]["best_layout"] = {"coverage": {"mean": best}, "buoys": n_agents - lose}
-        bound = coverage.coverage_ceiling(region.polygon.area, n_agents - lose, params.coverage.radius,
-                                          params.coverage.edges)  # min(1, N·A(Cov)/A(Reg)): no layout does better
-        out["baselines"]["upper_bound"] = {"coverage": {"mean": bound}, "buoys": n_agents - lose}
+        out["baselines"] |= limits(region, params, n_agents - lose, best if best_layout else None)
     lloyd = out["baselines"][lloyd_key]["coverage"]["mean"]
     out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None
     out["ratio_to_best"] = out["coverage"]["mean"] / best if best > 0 else None
     return out
+
+
+def limits(region: Region, params: Params, buoys: int, best: float | None) -> dict:
+    """The best layout's coverage (``best``, when searched) and the upper bound min(1, N·A(Cov)/A(Reg)) of ``buoys``
+    in service, as baselines: no layout covers more than the bound."""
+    bound = coverage.coverage_ceiling(region.polygon.area, buoys, params.coverage.radius, params.coverage.edges)
+    out = {"upper_bound": {"coverage": {"mean": bound}, "buoys": buoys}}
+    return out if best is None else {"best_layout": {"coverage": {"mean": best}, "buoys": buoys}} | out
 
 
 def rivals_and_limit(rivals: dict, covered, limit, aside: dict, phase) -> tuple[dict, float]:

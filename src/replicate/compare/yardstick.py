@@ -2,7 +2,7 @@
 before one is kept.
 
 Each version is given as the exported policies of several training seeds. They run, zero-shot and on the same
-episodes, on lakes of a seed stream of their own (``lakes.yardstick``): never trained on, and never the held-out
+episodes, on lakes of a seed stream of their own (``lakes.yardstick``): never trained on, and never the test
 lakes the report judges the kept version on. A cell is one lake × fleet × start × event (``YardstickCell``); a
 policy's score is its mean over the cells of its coverage / ``lloyd_tuned``'s, Lloyd run on the same starts and
 events with the gains the policies carry. The candidate is kept when the bootstrap interval of its gain lies above

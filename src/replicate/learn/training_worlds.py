@@ -1,7 +1,7 @@
 """The general policy's worlds: regions with a fleet each, and their environments behind the shore wall.
 
 A world is a region and a fleet size: the named regions of ``general.regions`` with a fleet of ``general.fleet``,
-and ``general.lakes`` generated training lakes (``lakes.training``, a stream apart from the held-out lakes') with
+and ``general.lakes`` generated training lakes (``lakes.training``, a stream apart from the test lakes') with
 their own N. Every environment has the wall, the local sensors and CR's eq. (5)-(6) with the difference credit
 (``general.cover_weight`` and ``union_weight`` as c1 and c2). The training (``general_train``), the study of the
 baselines' gains (``tuning.tune_general_baselines``) and the evaluation (``evaluate.evaluate_policy``) build

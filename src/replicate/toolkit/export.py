@@ -62,7 +62,8 @@ def export_policy(actors_path: str | Path, region: Region, out: str | Path, sens
 def export_general(actor_path: str | Path, out: str | Path, sensitivity: float = 5.0,
                    baseline_gains: dict | None = None) -> dict:
     """Write a general policy (``general_train``'s ``actor.pt``) as TorchScript with its metadata, carrying
-    ``baseline_gains`` (naive swarming's and Lloyd's, tuned on its training worlds) when given."""
+    ``baseline_gains`` (naive swarming's, Lloyd's and decentralised Lloyd's, tuned on its training worlds) when
+    given."""
 
     saved = artifacts.torch_load(actor_path, "general policy")
     try:
@@ -91,7 +92,8 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
         metadata["symmetry"] = saved["symmetry"]
     if baseline_gains:
         metadata["baseline_gains"] = {k: {"gains": baseline_gains[k]["gains"], "study": baseline_gains[k].get("study")}
-                                      for k in ("naive_tuned", "lloyd_tuned")}
+                                      for k in ("naive_tuned", "lloyd_tuned", "decentralised_tuned")
+                                      if k in baseline_gains}
     save_policy(module, metadata, out)
     return metadata
 

@@ -129,7 +129,8 @@ def lake_region(spec: LakeSpec, coverage_area: float) -> Region:
 
 
 def held_out(count: int = 20, **draw) -> list[LakeSpec]:
-    """The evaluation suite's generated lakes: ``count`` recipes from the held-out stream, the same every time."""
+    """The lakes the evaluation suite read while the general training was designed: ``count`` recipes from the
+    held-out stream, the same every time (no longer in the suite: its test lakes are ``test_stream``'s)."""
     rng = np.random.default_rng(np.random.SeedSequence(HELD_OUT_ENTROPY))
     return [draw_spec(rng, **draw) for _ in range(count)]
 
@@ -145,7 +146,7 @@ def test_stream(count: int = 20, **draw) -> list[LakeSpec]:
 def yardstick(count: int = 10, **draw) -> list[LakeSpec]:
     """The yardstick's lakes (``compare.yardstick``): ``count`` recipes from a stream of their own, on which two
     versions of a training are compared before one is kept, so that the choice never reads a lake the report
-    judges it on (the held-out lakes) or one it trained on."""
+    judges it on (the test lakes) or one it trained on."""
     rng = np.random.default_rng(np.random.SeedSequence(YARDSTICK_ENTROPY))
     return [draw_spec(rng, **draw) for _ in range(count)]
 

@@ -139,7 +139,8 @@ def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
 
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over {cov['n']} evaluation episodes); "
           f"Lloyd {lloyd['coverage']['mean']:.3f} (gains {lloyd['gains']}), ratio {ratio('ratio_to_lloyd')}; "
-          f"best layout {rivals['best_layout']['coverage']['mean']:.3f}, ratio {ratio('ratio_to_best')}; "
+          f"best layout {rivals['best_layout']['coverage']['mean']:.3f}, ratio {ratio('ratio_to_best')} (no layout "
+          f"above {rivals['upper_bound']['coverage']['mean']:.3f}); "
           + (f"decentralised Lloyd {rivals['decentralised_lloyd']['coverage']['mean']:.3f}; "
              if "decentralised_lloyd" in rivals else "") +
           f"furthest outside the water {result['max_outside_m']:.3g} m; buoys of {si['radius_m']:.3g} m at "
