@@ -96,8 +96,8 @@ def training_split(params, square, config: str, method: str, episodes: int, runs
         tr = Trainer(rc, square, episodes, list(range(runs)), [Path(tmp) / f"run{k}" for k in range(runs)],
                      checkpoint_every=episodes, progress=False)
         tr.run()
-    env_s = (tr.wall - tr.update_seconds) / episodes * 1000 / runs
-    per_update = tr.update_seconds / max(tr.updates, 1) / runs
+    env_s = (tr.wall - tr.loop.update_seconds) / episodes * 1000 / runs
+    per_update = tr.loop.update_seconds / max(tr.loop.updates, 1) / runs
     return env_s, per_update, *projected_run(params, config, method, env_s, per_update)
 
 

@@ -138,8 +138,8 @@ def project_end_to_end(episodes: int = 1000) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         tr = Trainer(rc, square, episodes, 0, Path(tmp) / "run", checkpoint_every=episodes, progress=False)
         tr.run()
-    env_per_1000 = (tr.wall - tr.update_seconds) / episodes * 1000
-    per_update = tr.update_seconds / max(tr.updates, 1)
+    env_per_1000 = (tr.wall - tr.loop.update_seconds) / episodes * 1000
+    per_update = tr.loop.update_seconds / max(tr.loop.updates, 1)
     updates_per_1000 = 1000 * rc.world.episode_length / rc.algo.maddpg.update_every
     return {"per_1000_episodes": env_per_1000 + updates_per_1000 * per_update, "per_update": per_update}
 

@@ -54,3 +54,18 @@ def test_it_spreads_over_the_square_from_the_corner(params, regions):
         start = coverage_fraction(regions["square"].polygon, trace["positions"][0], 0.5, 30).mean()
     assert finals["decentralised"] > 2 * start
     assert abs(finals["decentralised"] - finals["clairvoyant"]) < 0.1
+
+
+def test_a_buoy_senses_every_raster_point_within_reach(regions):
+    """``sense`` reads the grid cells around each buoy: it marks exactly the points within ``reach`` (a reach that
+    is no multiple of the spacing), also for a buoy outside the lake's bounds, as a distance to every point does."""
+    from replicate.compare.decentralised import Raster, sense
+
+    raster = Raster(regions["bedok"].polygon, 0.07)
+    rng = np.random.default_rng(3)
+    minx, miny, maxx, maxy = regions["bedok"].polygon.bounds
+    pos = rng.uniform((minx - 1, miny - 1), (maxx + 1, maxy + 1), size=(2, 7, 2))
+    known = sense(np.zeros((2, 7, len(raster.points)), bool), pos, raster, 0.53)
+    brute = np.linalg.norm(raster.points[None, None] - pos[:, :, None], axis=-1) <= 0.53
+    np.testing.assert_array_equal(known, brute)
+    assert known.any()

@@ -138,7 +138,8 @@ def test_the_update_by_hand_is_the_autograd_update(params, config, mode, runs):
     for name in ("actor_opt", "critic_opt"):
         mine, theirs = getattr(by_hand, name).state_dict()["state"], getattr(readable, name).state_dict()["state"]
         for i, st in theirs.items():
-            torch.testing.assert_close(mine[i]["exp_avg"], st["exp_avg"], rtol=1e-3, atol=1e-6)
+            for moment in ("exp_avg", "exp_avg_sq"):
+                torch.testing.assert_close(mine[i][moment], st[moment], rtol=1e-3, atol=1e-6)
 
 
 def test_gradient_clip_and_soft_update(params):

@@ -114,3 +114,16 @@ def test_n_step_transitions_stop_at_a_loss():
 def test_n_step_below_one_is_refused():
     with pytest.raises(ValueError, match="n >= 1"):
         NStepWriter(Replay(4, 2, 2), 0, 0.9)
+
+
+def test_the_loop_keeps_the_best_actor_by_its_tie_rule():
+    """``TrainingLoop.keep``: a better score replaces the kept actor; an equal one replaces it for the per-region
+    runs ("later") and not for a fine-tuning, which keeps its starting weights unless training improves on them."""
+    from replicate.learn.loop import TrainingLoop
+
+    for ties, kept_on_tie in (("later", 2), ("earlier", 1)):
+        loop = TrainingLoop(agent=None, cfg=None, memories=[Replay(4, 2, 2)], sample_rngs=[None], stacked=False)
+        assert loop.keep(0, 0.5, 1, lambda: {"w": 1}, ties)
+        assert not loop.keep(0, 0.4, 2, lambda: {"w": 2}, ties)
+        assert loop.keep(0, 0.5, 2, lambda: {"w": 2}, ties) == (kept_on_tie == 2)
+        assert loop.kept[0] == {"episodes": kept_on_tie, "score": 0.5, "actor": {"w": kept_on_tie}}

@@ -273,3 +273,13 @@ def test_corrupt_and_mismatched_checkpoints_are_refused(params, regions, tmp_pat
         small_trainer(params, regions["square"], tmp_path / "run").load_checkpoint()
     with pytest.raises(CheckpointError, match="no checkpoint"):
         small_trainer(params, regions["square"], tmp_path / "empty").load_checkpoint()
+
+
+def test_a_checkpoint_names_its_kept_actor_as_the_loop_does():
+    """A checkpoint written before the loop was shared keeps its actor under ``episode``/``coverage``: it resumes
+    with the same kept actor."""
+    from replicate.learn.train import kept_actor
+
+    old = {"episode": 40, "coverage": 0.61, "actor": {"w": 1}}
+    assert kept_actor(old) == {"episodes": 40, "score": 0.61, "actor": {"w": 1}}
+    assert kept_actor(kept_actor(old)) == kept_actor(old) and kept_actor(None) is None

@@ -7,6 +7,7 @@ import dataclasses
 import json
 
 import numpy as np
+import pytest
 
 from replicate.compare import baselines
 from replicate.compare.best_layout import best_coverage
@@ -20,6 +21,7 @@ from replicate.world.scenario import general_evaluation_env, horizon
 from ..conftest import ROOT
 
 
+@pytest.mark.slow
 def test_random_actions_fail_every_bar(params):
     """Mae Kuang (arms: lloyd_tuned falls short of the best layout, so the narrow-lake bar applies) with 9 buoys
     from the corner: still water, a loss at T/2 and the suite's drift, 8 episodes each."""

@@ -119,12 +119,12 @@ def test_dvc_repro_end_to_end(tmp_path):
     params["tuning"].update(starts=4)
     params["tuning"]["baselines"]["naive"]["trials"] = 3
     params["tuning"]["baselines"]["lloyd"]["trials"] = 3
-    params["tuning"]["general_baselines"].update(starts=2, naive_trials=2, lloyd_trials=2)
+    params["tuning"]["general_baselines"].update(starts=2, naive_trials=2, lloyd_trials=2, decentralised_trials=2)
     params["general"].update(regions=["square"], fleet=[6], lakes=1, lake_fleet=[5, 5], lake_ratio=[1.0, 1.0],
                              n_envs=4, episodes=8, episode_length=10, learning_starts=50, batch_size=16,
                              buffer_size=1000, update_every=8, seeds=[0, 1])
-    params["general"]["suite"].update(test_lakes=3, real_lakes=[], named_fleets=[5], lake_fleets=[6],
-                                      starts=["random"], episodes=2)
+    params["general"]["suite"].update(test_lakes=3, real_lakes=["data/lakes/lake_karaguz.geojson"], named_fleets=[5],
+                                      lake_fleets=[6], starts=["random"], episodes=2)
     params["yardstick"].update(seeds=[2, 3], min_seeds=2)
     params["pipeline"]["configs"] = ["paper", "tuned"]
     params["pipeline"]["ablation"] = True  # the experiment `dvc exp run -S pipeline.ablation=true`, here in one go
@@ -171,12 +171,14 @@ def test_dvc_repro_end_to_end(tmp_path):
     assert [r["seed"] for r in standing] == [2, 3]
     assert all((repo / "yardstick" / r["policy"]).is_file() for r in standing)
     general = json.loads((repo / "metrics" / "tuning" / "general_baselines.json").read_text())
-    assert {k: v["trials"] for k, v in general.items()} == {"naive_tuned": 2, "lloyd_tuned": 2}
+    assert {k: v["trials"] for k, v in general.items()} == {"naive_tuned": 2, "lloyd_tuned": 2,
+                                                           "decentralised_tuned": 2}
     outline = json.loads((repo / "data" / "bedok_outline.geojson").read_text())
     assert outline["features"][0]["properties"]["source"] == "fallback"
     assert "bundled" in (repo / "notebooks" / "executed" / "fetch_outline.ipynb").read_text()
     report = (repo / "REPORT.md").read_text()
-    assert "## One policy for every lake" in report and "| 3 held-out lakes (mean) | 6 | random | none |" in report
+    assert "## One policy for every lake" in report and "| 3 test lakes (mean) | 6 | random | none |" in report
+    assert "| lake_karaguz | 6 | random | none |" in report  # a real lake, every cell
     assert "The paper's claims" in report and "| baseline | region | steps | coverage" in report
     assert report.count("![") == len(figures)
     assert "## Targets of `tuned` CR-MARL" in report and "| rule | verdict | sensitivity |" in report

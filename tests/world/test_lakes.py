@@ -49,6 +49,14 @@ def test_training_lakes_never_meet_the_held_out_lakes():
     assert lakes.training(5) == lakes.training(500)[:5], "the same stream for every training"
 
 
+def test_the_test_lakes_meet_no_other_stream():
+    """The suite's test lakes (``lakes.test_stream``) are none of the training, design or held-out lakes."""
+    test = {s.seed for s in lakes.test_stream(50)}
+    assert len(test) == 50 and lakes.test_stream(3) == lakes.test_stream(50)[:3]
+    for other in (lakes.training(500), lakes.yardstick(50), lakes.held_out(50)):
+        assert not test & {s.seed for s in other}
+
+
 def test_design_lakes_are_neither_trained_on_nor_reported():
     """The lakes where versions of a training are compared (``compare.yardstick``) come from a stream of their own."""
     chosen_on = {s.seed for s in lakes.yardstick(50)}

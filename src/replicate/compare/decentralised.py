@@ -35,6 +35,8 @@ class Raster:
     def __init__(self, region, spacing: float):
         minx, miny, maxx, maxy = region.bounds
         xs, ys = np.arange(minx + spacing / 2, maxx, spacing), np.arange(miny + spacing / 2, maxy, spacing)
+        if not len(xs) or not len(ys):  # a lake narrower than the spacing: no point, every buoy stays put
+            xs, ys = np.array([minx]), np.array([miny])
         gx, gy = np.meshgrid(np.arange(len(xs)), np.arange(len(ys)), indexing="ij")
         inside = shapely.contains_xy(region, xs[gx], ys[gy])
         self.points = np.stack([xs[gx[inside]], ys[gy[inside]]], axis=1)

@@ -9,7 +9,9 @@ events with the gains the policies carry. The candidate is kept when the bootstr
 ``yardstick.min_gain`` with the training seed as the unit: one seed moves every cell at once, so an interval over
 cells is too narrow (``docs/GENERAL.md``, "Choosing on lakes of their own", has the case that showed it).
 The baseline version is by default the standing one (``STANDING``, stage ``train_yardstick``): the current values on
-the tuning seeds of ``yardstick.seeds``, so that a candidate trains only its own seeds.
+the tuning seeds of ``yardstick.seeds``, so that a candidate trains only its own seeds. Its drift flows along +x in
+every cell (the suite's heading is drawn per cell), so that its decisions stay comparable with the ones recorded in
+``docs/GENERAL.md``.
 """
 
 from __future__ import annotations

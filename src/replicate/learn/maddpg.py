@@ -8,8 +8,8 @@ Several independent runs (seeds) of the N agents can train in one process: their
 (weights [S·N, in, out]) and every array carries a leading run axis [S, ...].
 
 ``MADDPG.update`` is the algorithm as it reads: two losses and autograd. The training computes the same update with
-its gradients written out (``maddpg_by_hand.MADDPGByHand``: 1.4× faster at the paper's batch of 1024, ``make bench``
-section 2), which ``tests/learn/test_maddpg.py`` checks against this one and against a per-agent loop.
+its gradients written out (``maddpg_by_hand.MADDPGByHand``: 1.4-1.5× faster at the paper's batch of 1024, ``make
+bench`` section 2), which ``tests/learn/test_maddpg.py`` checks against this one and against a per-agent loop.
 
 ``reward_mode`` ``"shared"`` is the original collaborative MADDPG (every critic learns the team reward, the
 agents' mean; for SW-MARL, which already returns one r to everyone, that is r itself); ``"individual"`` is the

@@ -1,17 +1,17 @@
 """MADDPG's update with its gradients written out: an optimisation of ``maddpg.MADDPG.update``, the one the
 training runs.
 
-The two losses are those of ``MADDPG.update``; their gradients are two matmuls per layer (``backward``), each in
-the form the CPU BLAS runs fastest (``stacked_matmul``), and the actor's gradient reads only the critic's
-own-action columns. ``make bench`` section 2 times it against the autograd update at the paper's batch of 1024
-(1.4× faster) and at ``tuned``'s 128 (as fast); ``tests/learn/test_maddpg.py`` checks it against the autograd update
-and against the per-agent loop of ``tests/learn/loop_maddpg.py``. Adam and the soft update work on each run's part of
-a stack as a tensor of its own, so a run's arithmetic does not depend on the stack it trains in (a run's curve is bit
-for bit its single-run curve, ``tests/learn/test_training.py``), and the per-operation overhead that dominates an
-update at ``tuned``'s batch of 128 is paid once for the stack.
+The two losses are those of ``MADDPG.update``; their gradients are two matmuls per layer (``backward``), each in the
+form the CPU BLAS runs fastest (``stacked_matmul``), and the actor's gradient reads only the critic's own-action
+columns. ``make bench`` section 2 times it against the autograd update at the paper's batch of 1024 (1.4-1.5×
+faster) and at ``tuned``'s 128 (as fast or faster); ``tests/learn/test_maddpg.py`` checks it against the autograd
+update and against the per-agent loop of ``tests/learn/loop_maddpg.py``. Adam and the soft update work on each run's
+part of a stack as a tensor of its own, so a run's arithmetic does not depend on the stack it trains in (a run's
+curve is bit for bit its single-run curve, ``tests/learn/test_training.py``), and the per-operation overhead that
+dominates an update at ``tuned``'s batch of 128 is paid once for the stack.
 
 A change of the networks or of a loss in ``MADDPG`` is a change here too, or the training runs ``MADDPG`` itself
-(``train.LEARNER``): the test against the autograd update fails until one of the two is made.
+(``LEARNER``, below): the test against the autograd update fails until the written-out gradients follow.
 """
 
 from __future__ import annotations
@@ -98,3 +98,9 @@ class MADDPGByHand(MADDPG):
         soft_update(self.params["critic_target"], self.params["critic"], cfg.tau, s)  # θ' ← τθ + (1 − τ)θ'
         soft_update(self.params["actor_target"], self.params["actor"], cfg.tau, s)
         return self.diagnostics(q, y, v)
+
+
+# the update the per-region runs train with (``train``) and the fingerprint digests (``fingerprint``): MADDPG's, its
+# gradients written out; a change of the networks or losses in ``MADDPG`` trains with ``MADDPG`` itself until the
+# written-out gradients follow (and raises ``runs.TRAINING_VERSION``)
+LEARNER = MADDPGByHand

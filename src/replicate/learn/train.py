@@ -1,4 +1,4 @@
-"""The training loop: E parallel environments, MADDPG updates, per-episode curve, resumable checkpoints.
+"""The per-region training: E parallel environments, MADDPG updates, per-episode curve, resumable checkpoints.
 
 A run directory holds ``run.json`` (what was run), ``curve.csv.gz`` (one row per episode, gzip: 10,000 rows of
 15 columns are 1.2 MB as text and ~0.4 MB compressed), while it trains ``checkpoint.pt`` (everything needed to
@@ -27,7 +27,7 @@ from replicate.learn import run_stack
 from replicate.learn.fingerprint import fingerprint
 from replicate.learn.loop import TrainingLoop
 from replicate.learn.maddpg import BatchedMLP
-from replicate.learn.maddpg_by_hand import MADDPGByHand
+from replicate.learn.maddpg_by_hand import LEARNER
 from replicate.learn.replay import Replay
 from replicate.learn.runs import run_identity
 from replicate.world.regions import Region
@@ -35,13 +35,18 @@ from replicate.world.scenario import run_env
 
 DIAGNOSTICS = ("critic_loss", "q_abs", "saturated", "noise")
 CURVE = "curve.csv.gz"  # the per-episode curve of a run, in its folder
-# the update the runs train with: ``maddpg.MADDPG``'s, its gradients written out (``maddpg_by_hand``); a change of
-# the networks or losses in ``MADDPG`` trains with ``MADDPG`` itself until the written-out gradients follow
-LEARNER = MADDPGByHand
 
 
 def curve_header(n_agents: int) -> list[str]:
     return ["episode", *[f"reward_{i}" for i in range(n_agents)], "team_reward", "coverage", *DIAGNOSTICS]
+
+
+def kept_actor(best: dict | None) -> dict | None:
+    """A checkpoint's kept actor as ``loop.TrainingLoop.keep`` holds it; a checkpoint written before the loop
+    was shared names its fields ``episode`` and ``coverage``."""
+    if best is None or "score" in best:
+        return best
+    return {"episodes": best["episode"], "score": best["coverage"], "actor": best["actor"]}
 
 
 def check_schedule(rc: RunConfig, episodes: int, checkpoint_every: int) -> None:
@@ -75,7 +80,7 @@ class Played:
 class Trainer:
     """S training runs of one config, method and region, one per seed of ``seeds``, written to the folders ``outs``
     (an int and a folder for one run). The runs step together: their environments are blocks of one batch
-    (``CoverageEnv.seed``) and their networks one stack (``MADDPG``), so the per-operation cost of an update and
+    (``CoverageEnv.seed``) and their networks one stack (``LEARNER``), so the per-operation cost of an update and
     an environment step is paid once for all of them. Each run still draws from its own generators, learns from
     its own replay buffer and writes its own folder, and its curve is bit for bit the one it gets alone
     (``tests/learn/test_training.py``). ``run`` trains to ``episodes``; ``load_checkpoint`` first, to continue."""
@@ -134,7 +139,7 @@ class Trainer:
 
     def run(self) -> list[dict]:
         """Train every run to ``episodes``, checkpointing on the way; returns the runs' summaries. Each batch of
-        ``n_envs`` episodes per run is played (``play``, which learns as the transitions come in: ``learn``),
+        ``n_envs`` episodes per run is played (``play``, which learns as the transitions come in: ``loop.learn``),
         recorded (``record``), then validated and checkpointed on their schedules."""
         algo = self.rc.algo
         n_env, runs = algo.n_envs, len(self.seeds)
@@ -294,7 +299,7 @@ class Trainer:
                 self.loop.sample_rngs[k].bit_generator.state = state["rng"]["sample"]
                 self.rows[k] = [list(r) for r in state["rows"]]
                 self.validation[k] = [list(r) for r in state["validation"]]
-                self.loop.kept[k] = state["best"]
+                self.loop.kept[k] = kept_actor(state["best"])
                 self.transitions = int(state["transitions"])
                 self.loop.pending_updates, self.loop.updates = float(state["pending_updates"]), int(state["updates"])
                 self.wall, self.loop.update_seconds = float(state["wall"]), float(state["update_seconds"])

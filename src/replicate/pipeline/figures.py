@@ -181,18 +181,20 @@ def make_figures(params_path: str, runs_dir: str, metrics_dir: str, figures_dir:
 
 
 def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[Path]:
-    """The general policy, one evaluation episode each: on the real lakes of ``general.suite.real_lakes`` from the
-    suite's last start (scattered by default; ``fig_general_lakes.png``), and as GIFs through a loss of a share of
-    the fleet at T/2 (``anim_general_lose.gif``) and through the suite's drift of that cell
-    (``anim_general_current.gif``), on Bedok with the paper's fleet."""
+    """The general policy, one evaluation episode each: on the real lakes of ``general.suite.real_lakes`` (three
+    test lakes where there are none) from the suite's last start (scattered by default; ``fig_general_lakes.png``),
+    and as GIFs through a loss of a share of the fleet at T/2 (``anim_general_lose.gif``) and through the suite's
+    drift of that cell (``anim_general_current.gif``), on Bedok with the paper's fleet."""
 
     su, c = params.general.suite, params.coverage
     suite = {(x["region"], x["n_agents"], x["start"], x["event"]): x
              for x in json.loads(suite_path.read_text())["cells"]}
     n, start = max(su.lake_fleets), su.starts[-1]
-    real = [name for name, kind in lake_kinds(params).items() if kind == "real" and name not in params.regions]
+    kinds = lake_kinds(params)
+    shown = [name for name, kind in kinds.items() if kind == "real" and name not in params.regions]
+    shown = shown or [name for name, kind in kinds.items() if kind == "test"][:3]  # no lake files: test lakes
     panels = []
-    for name in real:
+    for name in shown:
         region = at_density(*suite_lake(params, name), n)
         trace, _ = general_episode(policy, region, params, n, start)
         cell = suite[(name, n, start, "none")]
@@ -203,7 +205,7 @@ def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[P
             f"{name}\nN = {n}: coverage {cover:.2f} in this episode\nmean of {cell['coverage']['n']}: "
             f"{cell['coverage']['mean']:.3f}; {lloyd} {rival[lloyd]:.3f}, best layout {rival['best_layout']:.3f}")})
     written = [plots.general_lakes(panels, c.radius, c.edges, fig / "fig_general_lakes.png",
-                                   f"The general policy on real lakes it never trained on ({start} starts; "
+                                   f"The general policy on lakes it never trained on ({start} starts; "
                                    "crosses: where the buoys started)")]
     bedok, buoys = make_region("bedok", params.regions["bedok"], params.world.region_area), params.world.n_agents
     lose = suite_lose(su, buoys)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from replicate.compare.suite import KINDS
+from replicate.compare.suite import KINDS, lake_kinds
 from replicate.core.params import Cell, run_config
 from replicate.core.sections import EVENTS
 from replicate.pipeline.report.rules import fmt
@@ -15,8 +15,9 @@ from replicate.pipeline.report.rules import fmt
 YARDSTICKS = ("naive_tuned", "decentralised_lloyd", "lloyd_tuned", "geodesic_lloyd", "best_layout", "upper_bound")
 INFORMATION = {
     "general policy": "its own sensors: the buoys it hears within the communication range, rays to the shore",
-    "naive_tuned": "the positions of every buoy (the swarm's centre), not the map",
-    "decentralised_lloyd": "what the policy knows: the buoys it hears, the water its rays have swept",
+    "naive_tuned": "the buoys near it (it keeps away from them) and the map (it is drawn into the water)",
+    "decentralised_lloyd": "what the policy knows: the buoys it hears, the water within its shore sensor's reach "
+                           "of where it has been",
     "lloyd_tuned": "the map and every buoy (clairvoyant)",
     "geodesic_lloyd": "the map and every buoy, cells and paths through the water (clairvoyant)",
     "best_layout": "the map, no physics and no time: a layout searched offline (a heuristic, not a bound)",
@@ -27,8 +28,8 @@ KIND_TITLE = {"trained": "trained on (the training worlds)", "test": "test lakes
 
 
 def kind_of(params, c: dict) -> str:
-    """A cell's lake kind; a cell written without one is a trained-on region or a generated lake."""
-    return c.get("kind") or ("trained" if c["region"] in params.general.regions else "test")
+    """A cell's lake kind (``compare.suite.lake_kinds`` for a cell written without one)."""
+    return c.get("kind") or lake_kinds(params).get(c["region"], "test")
 
 
 def seed_coverages(cell: dict) -> dict[str, float]:
@@ -40,7 +41,7 @@ def seed_coverages(cell: dict) -> dict[str, float]:
 
 def over_seeds(values: list[float], level: float = 0.95) -> str:
     """mean [interval] over training seeds, the seed as the unit: Student's t (the percentile bootstrap keeps a
-    null difference too often at fewer than 10 seeds); the range with one seed alone."""
+    null difference too often at fewer than 10 seeds); the mean alone for one seed."""
     v = np.asarray(values, float)
     if len(v) < 2:
         return f"{v.mean():.3f}"
@@ -193,16 +194,18 @@ def general_section(params, general: dict, summary: dict | None = None) -> list[
     cells = general["cells"]
     su = params.general.suite
     seeds = general.get("seeds", [])
+    trained = [r for r in params.regions if r in params.general.regions]
+    named_real = [r for r in params.regions if r not in params.general.regions]
     said = {"none": "still water", "lose": f"{su.lose_fraction:.0%} of the fleet lost at T/2 (coverage of the rest "
             "at T)", "current": f"a uniform drift of {su.current} m/s, its heading drawn per cell"}
     lines = ["## One policy for every lake", "",
              f"The general policy (`{general['policy']}`, one network trained on the training worlds of `general`, "
              f"local sensors only, the compass symmetry `{params.general.learner.symmetry}`) on three kinds of "
-             f"lakes, never pooled: the two it trains on (the square and the rectangle, N ∈ "
-             f"{list(su.named_fleets)} at the paper's density), {su.test_lakes} generated test lakes of a seed "
-             f"stream that no choice read (N ∈ {list(su.lake_fleets)}, each at its own density), and real lakes, "
-             f"zero-shot: Bedok (N ∈ {list(su.named_fleets)}) and {len(su.real_lakes)} OpenStreetMap reservoirs "
-             f"(N ∈ {list(su.lake_fleets)}). Starts in the corner patch or scattered; "
+             f"lakes, never pooled: the regions it trains on ({', '.join(trained)}, N ∈ {list(su.named_fleets)} "
+             f"at the paper's density), {su.test_lakes} generated test lakes of a seed stream that no choice read "
+             f"(N ∈ {list(su.lake_fleets)}, each at its own density), and real lakes, zero-shot: "
+             f"{', '.join(named_real) or 'no named region'} (N ∈ {list(su.named_fleets)}) and "
+             f"{len(su.real_lakes)} lake files (N ∈ {list(su.lake_fleets)}). Starts in the corner patch or scattered; "
              f"{', '.join(said[e] for e in su.events)}; {su.episodes} episodes per cell from the evaluation seed, "
              "behind the shore wall (no buoy can leave the water: a property of the wall, not a result).", "",
              f"The seed is the unit: {len(seeds) or 1} trained seeds ({', '.join(seeds) or 'one'}), each exported; a "
