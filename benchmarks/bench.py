@@ -11,8 +11,8 @@
    From the side-by-side figures, the projected `train` stage (every run of params.yaml's matrix and ablation)
    and the same with every update at its matmul floor; section 8 adds the other stages.
 2. One update of all 9 agents, per configuration: the training's update (``MADDPGByHand``, the gradients written
-   out) against the readable ``MADDPG.update`` (autograd; the written-out one is kept while it is at least 1.3x
-   faster at the paper's batch) and the per-agent loop (``tests/learn/loop_maddpg.py``), as ratios.
+   out) against the readable ``MADDPG.update`` (autograd; the written-out one is kept only while it is at least
+   1.3x faster at the paper's batch) and the per-agent loop (``tests/learn/loop_maddpg.py``), as ratios.
 3. Environment throughput (agent-steps per second, random actions) at E = 1, 50 and 1,024 environments, with the
    CR reward on the square and with the shore wall on Bedok, against PettingZoo MPE2 ``simple_spread_v3`` (N = 9,
    continuous actions, one environment) and VMAS ``simple_spread`` (9 agents, the same E), as ratios.

@@ -7,9 +7,10 @@ each agent's parameters and Adam state are separate slices, this is the same alg
 Several independent runs (seeds) of the N agents can train in one process: their networks are stacked too
 (weights [S·N, in, out]) and every array carries a leading run axis [S, ...].
 
-``MADDPG.update`` is the algorithm as it reads: two losses and autograd. The training computes the same update with
-its gradients written out (``maddpg_by_hand.MADDPGByHand``: 1.4-1.5× faster at the paper's batch of 1024, ``make
-bench`` section 2), which ``tests/learn/test_maddpg.py`` checks against this one and against a per-agent loop.
+``MADDPG.update`` is the algorithm as it reads: two losses and autograd. The per-region runs were trained by the same
+update with its gradients written out (``maddpg_by_hand.MADDPGByHand``), which ``tests/learn/test_maddpg.py`` checks
+against this one and against a per-agent loop; ``make bench`` section 2 times the two (1.15-1.2× at the paper's
+batch of 1024: under the 1.3× that would keep the written-out gradients, so they go with the runs' next retraining).
 
 ``reward_mode`` ``"shared"`` is the original collaborative MADDPG (every critic learns the team reward, the
 agents' mean; for SW-MARL, which already returns one r to everyone, that is r itself); ``"individual"`` is the
@@ -82,8 +83,17 @@ class BatchedMLP(nn.Module):
         return out
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """x [N, B, in] → [N, B, out], differentiable by autograd."""
+        """x [N, B, in] → [N, B, out] (the rollouts' and the written-out update's form of every matmul)."""
         return self.layers(x)[0]
+
+    def differentiable(self, x: torch.Tensor) -> torch.Tensor:
+        """``forward`` in the form autograd differentiates fastest, one ``baddbmm`` per layer: the same function,
+        its narrow layers rounded as ``bmm`` rounds them (``make bench`` section 2)."""
+        last = len(self.weights) - 1
+        for k, (w, b) in enumerate(zip(self.weights, self.biases)):
+            x = torch.baddbmm(b, x, w)
+            x = torch.relu(x) if k < last else x
+        return x
 
     @torch.no_grad()
     def forward_saving(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
@@ -258,7 +268,7 @@ class MADDPG:
         with torch.no_grad():
             next_act = torch.tanh(self.actor_target(v.per_agent(v.next_obs))).view(v.runs, v.n, v.batch, -1)
             y = v.r + v.disc * self.critic_target(v.joint(v.next_obs, next_act.transpose(1, 2))).squeeze(-1)
-        q = self.critic(v.joint(v.obs, v.act)).squeeze(-1)  # [S·N, B]
+        q = self.critic.differentiable(v.joint(v.obs, v.act)).squeeze(-1)  # [S·N, B]
         critic_loss = ((q - y) ** 2).mean(dim=1).sum()  # Σ_i of critic i's mean squared TD error
         self.critic_opt.zero_grad(set_to_none=True)
         critic_loss.backward()
@@ -266,8 +276,8 @@ class MADDPG:
         self.critic_opt.step()
 
         # Actor: ∇θ_i J = E[∇θ_i μ_i(o_i) ∇a_i Q_i(x, a_1, …, μ_i(o_i), …, a_N)] + 1e-3·mean(pre-tanh²)
-        pre = self.actor(v.per_agent(v.obs))  # [S·N, B, ad]
-        q_pi = self.critic(self.with_own_actions(v, v.joint(v.obs, v.act), torch.tanh(pre))).squeeze(-1)
+        pre = self.actor.differentiable(v.per_agent(v.obs))  # [S·N, B, ad]
+        q_pi = self.critic.differentiable(self.with_own_actions(v, v.joint(v.obs, v.act), torch.tanh(pre))).squeeze(-1)
         actor_loss = (-q_pi.mean(dim=1) + cfg.actor_reg * (pre**2).mean(dim=(1, 2))).sum()
         self.actor_opt.zero_grad(set_to_none=True)
         actor_loss.backward(inputs=self.params["actor"])  # through μ_i only, not into Q's weights

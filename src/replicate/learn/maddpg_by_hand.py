@@ -1,14 +1,16 @@
 """MADDPG's update with its gradients written out: an optimisation of ``maddpg.MADDPG.update``, the one the
-training runs.
+per-region runs were trained with, and the training's until they are trained again.
 
 The two losses are those of ``MADDPG.update``; their gradients are two matmuls per layer (``backward``), each in the
 form the CPU BLAS runs fastest (``stacked_matmul``), and the actor's gradient reads only the critic's own-action
-columns. ``make bench`` section 2 times it against the autograd update at the paper's batch of 1024 (1.4-1.5×
-faster) and at ``tuned``'s 128 (as fast or faster); ``tests/learn/test_maddpg.py`` checks it against the autograd
-update and against the per-agent loop of ``tests/learn/loop_maddpg.py``. Adam and the soft update work on each run's
-part of a stack as a tensor of its own, so a run's arithmetic does not depend on the stack it trains in (a run's
-curve is bit for bit its single-run curve, ``tests/learn/test_training.py``), and the per-operation overhead that
-dominates an update at ``tuned``'s batch of 128 is paid once for the stack.
+columns. ``make bench`` section 2 times it against the autograd update: 1.13-1.18× faster at the paper's batch of
+1024, 1.3× at ``tuned``'s 128. That is under the 1.3× at the paper's batch that would keep it, so it goes with the
+runs' next retraining (135 runs, about 147 minutes on two cores: every run's numbers move in their last bits);
+``tests/learn/test_maddpg.py`` checks it against the autograd update and against the per-agent loop of
+``tests/learn/loop_maddpg.py``. Adam and the soft update work on each run's part of a stack as a tensor of its own,
+so a run's arithmetic does not depend on the stack it trains in (a run's curve is bit for bit its single-run curve,
+``tests/learn/test_training.py``), and the per-operation overhead that dominates an update at ``tuned``'s batch of
+128 is paid once for the stack.
 
 A change of the networks or of a loss in ``MADDPG`` is a change here too, or the training runs ``MADDPG`` itself
 (``LEARNER``, below): the test against the autograd update fails until the written-out gradients follow.
