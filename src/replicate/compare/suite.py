@@ -25,7 +25,7 @@ from typing import Literal
 import numpy as np
 from shapely import affinity
 
-from replicate.world.lakes import test_stream
+from replicate.world.lakes import lake_name, test_stream
 from replicate.world.regions import Region, make_region, region_from_file
 from replicate.world.scenario import named_lakes
 
@@ -49,7 +49,7 @@ def lake_kinds(params) -> dict[str, LakeKind]:
     """{lake name: its kind} of the suite, in the suite's order: named regions, real lake files, test lakes."""
     named = {name: "trained" if name in params.general.regions else "real" for name in params.regions}
     files = {Path(path).stem: "real" for path in params.general.suite.real_lakes}
-    tests = {name: "test" for name in named_lakes(params, test_stream(params.general.suite.test_lakes))}
+    tests = {lake_name(spec): "test" for spec in test_stream(params.general.suite.test_lakes)}
     return named | files | tests
 
 
@@ -60,7 +60,8 @@ def suite_lake(params, name: str) -> tuple[Region, int]:
     for path in params.general.suite.real_lakes:
         if Path(path).stem == name:
             return region_from_file(path, name, params.world.region_area), params.world.n_agents
-    return named_lakes(params, test_stream(params.general.suite.test_lakes))[name]
+    spec = {lake_name(s): s for s in test_stream(params.general.suite.test_lakes)}[name]
+    return named_lakes(params, [spec])[name]  # this lake's geometry alone
 
 
 def suite_lakes(params) -> dict[str, tuple[Region, int]]:

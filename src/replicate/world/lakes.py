@@ -122,10 +122,14 @@ def generate(spec: LakeSpec, coverage_area: float, margin: float = 0.6) -> Polyg
     return orient(affinity.translate(body, -minx, -miny), sign=1.0)
 
 
+def lake_name(spec: LakeSpec) -> str:
+    """A generated lake's name: its recipe."""
+    return f"lake-s{spec.seed}-n{spec.n_agents}-a{spec.arms}-i{spec.islands}"
+
+
 def lake_region(spec: LakeSpec, coverage_area: float) -> Region:
     """A generated lake as a ``Region`` named by its recipe."""
-    name = f"lake-s{spec.seed}-n{spec.n_agents}-a{spec.arms}-i{spec.islands}"
-    return Region(name, generate(spec, coverage_area))
+    return Region(lake_name(spec), generate(spec, coverage_area))
 
 
 def held_out(count: int = 20, **draw) -> list[LakeSpec]:
