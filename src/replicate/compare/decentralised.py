@@ -107,8 +107,9 @@ def local_centroids(pos: np.ndarray, known: np.ndarray, points: np.ndarray, k: i
     """Each buoy's centroid of the known water nearer to it than to any buoy it hears. pos [E, N, 2], known
     [E, N, M] bool, points [M, 2] → [E, N, 2] (the buoy's own position where that cell is empty)."""
     rel, heard = neighbours(pos, k, comm_range, alive)  # [E, N, k, 2] (other − self), [E, N, k]
-    out = np.array(pos, np.float64)
-    _centroids(out.copy(), np.ascontiguousarray(known), np.ascontiguousarray(points, np.float64),
+    pos = np.ascontiguousarray(pos, np.float64)
+    out = pos.copy()  # a buoy's own position where its cell holds no known point
+    _centroids(pos, np.ascontiguousarray(known), np.ascontiguousarray(points, np.float64),
                np.ascontiguousarray(rel, np.float64), np.ascontiguousarray(heard), out)
     return out
 

@@ -268,7 +268,8 @@ class MADDPG:
         with torch.no_grad():
             next_act = torch.tanh(self.actor_target(v.per_agent(v.next_obs))).view(v.runs, v.n, v.batch, -1)
             y = v.r + v.disc * self.critic_target(v.joint(v.next_obs, next_act.transpose(1, 2))).squeeze(-1)
-        q = self.critic.differentiable(v.joint(v.obs, v.act)).squeeze(-1)  # [S·N, B]
+        joint = v.joint(v.obs, v.act)  # [S·N, B, N·(od + ad)]: the batch's observations and actions
+        q = self.critic.differentiable(joint).squeeze(-1)  # [S·N, B]
         critic_loss = ((q - y) ** 2).mean(dim=1).sum()  # Σ_i of critic i's mean squared TD error
         self.critic_opt.zero_grad(set_to_none=True)
         critic_loss.backward()
@@ -277,7 +278,7 @@ class MADDPG:
 
         # Actor: ∇θ_i J = E[∇θ_i μ_i(o_i) ∇a_i Q_i(x, a_1, …, μ_i(o_i), …, a_N)] + 1e-3·mean(pre-tanh²)
         pre = self.actor.differentiable(v.per_agent(v.obs))  # [S·N, B, ad]
-        q_pi = self.critic.differentiable(self.with_own_actions(v, v.joint(v.obs, v.act), torch.tanh(pre))).squeeze(-1)
+        q_pi = self.critic.differentiable(self.with_own_actions(v, joint, torch.tanh(pre))).squeeze(-1)
         actor_loss = (-q_pi.mean(dim=1) + cfg.actor_reg * (pre**2).mean(dim=(1, 2))).sum()
         self.actor_opt.zero_grad(set_to_none=True)
         actor_loss.backward(inputs=self.params["actor"])  # through μ_i only, not into Q's weights
