@@ -1,9 +1,11 @@
 """The best layout: the highest coverage found offline for N buoys in a region, with no physics and no horizon.
 
 The limit every method is read against. Greedy placement puts each buoy in turn where its coverage polygon adds
-the most water not yet covered, among candidate points on a grid over the region; a local search then moves one
-buoy at a time to the best of eight points around it, shrinking the step when no move helps, until the step is
-below ``tolerance``; the best of four such searches from shifted grids is kept. Every score is exact:
+the most water not yet covered, among candidate points on a grid over the water; a local search then moves one
+buoy at a time to the best of eight points around it in the water, shrinking the step when no move helps, until
+the step is below ``tolerance``; the best of four such searches from shifted grids is kept. Every place is in the
+water (the region, shore included): a buoy behind the shore wall cannot sail onto a spit of land between two arms,
+so a layout with a buoy there is not one a fleet could take. Every score is exact:
 A(∪Cov ∩ Reg) by shapely, vectorised over the candidates, with only the candidates, neighbours and water within
 reach of a change scored again (the same areas, 4-6x faster than scoring the whole fleet and lake).
 """
@@ -86,6 +88,7 @@ def local_search(region: Polygon, xy: np.ndarray, step: float, radius: float, ed
             x, y = xy[i]
             water = shapely.intersection(region, shapely.box(x - reach, y - reach, x + reach, y + reach))
             moves = np.concatenate([xy[i:i + 1], xy[i] + step * compass])
+            moves = moves[np.r_[True, shapely.intersects_xy(region, moves[1:, 0], moves[1:, 1])]]  # in the water
             g = gains(water, rest, moves, radius, edges)
             k = int(np.argmax(g))
             if k > 0 and g[k] > g[0] + TIE:
@@ -105,13 +108,13 @@ def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spaci
     minx, miny, maxx, maxy = region.bounds
     if spacing is None:
         spacing = max(radius / 10, np.sqrt((maxx - minx + 2 * radius) * (maxy - miny + 2 * radius) / MAX_CANDIDATES))
-    reach = region.buffer(radius)  # a polygon centred outside the water can reach in
+    shapely.prepare(region)
     best = (None, -1.0)
     for dx, dy in GRID_OFFSETS:
         gx, gy = np.meshgrid(np.arange(minx + dx * spacing, maxx + spacing, spacing),
                              np.arange(miny + dy * spacing, maxy + spacing, spacing))
         grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
-        grid = grid[shapely.intersects_xy(reach, grid[:, 0], grid[:, 1])]
+        grid = grid[shapely.intersects_xy(region, grid[:, 0], grid[:, 1])]  # in the water, shore included
         xy = local_search(region, greedy(region, grid, n_agents, radius, edges), spacing, radius, edges, tolerance)
         cov = covered_area(region, xy, radius, edges) / region.area
         best = (xy, cov) if cov > best[1] + TIE else best

@@ -17,6 +17,7 @@ import torch
 from replicate.compare import baselines, metrics
 from replicate.compare.best_layout import best_coverage
 from replicate.compare.decentralised import decentralised_lloyd
+from replicate.compare.planner import clairvoyant_planner
 from replicate.compare.stats import mean_interval
 from replicate.core import artifacts
 from replicate.core.executor import Beside
@@ -203,7 +204,7 @@ def evaluate_baseline(name: str, params: Params, region: Region, config: str = "
 
 
 def general_baselines(params: Params, gains: dict | None, geodesic: bool = True, naive: bool = True,
-                      decentralised: bool = False) -> tuple[dict[str, baselines.Policy], str]:
+                      decentralised: bool = False, planner: bool = False) -> tuple[dict[str, baselines.Policy], str]:
     """The general policy's comparisons → ({name: policy}, how their gains were set). With ``gains`` (the study of
     ``tuning.general_baselines``, carried in the policy's metadata): ``naive_tuned``, ``lloyd_tuned`` and
     geodesic Lloyd with Lloyd's tuned gains, each tuned once on the policy's training worlds, never on the lake
@@ -211,7 +212,8 @@ def general_baselines(params: Params, gains: dict | None, geodesic: bool = True,
     ``geodesic`` False leaves geodesic Lloyd out (its paths through the water cost the most of the three),
     ``naive`` False naive swarming; ``decentralised`` True adds decentralised Lloyd with its own tuned gains
     (Lloyd's where there are none; ``compare.decentralised``: the buoys heard and the water sensed, on the geodesic
-    raster)."""
+    raster); ``planner`` True adds the clairvoyant planner (``compare.planner``: the best layout, sailed to) steering
+    with Lloyd's gains."""
     ev = params.evaluate
     if gains:
         naive_gains, lloyd = NaiveConfig(**gains["naive_tuned"]["gains"]), LloydConfig(
@@ -228,6 +230,8 @@ def general_baselines(params: Params, gains: dict | None, geodesic: bool = True,
         own = (gains or {}).get("decentralised_tuned")
         mine = LloydConfig(**own["gains"], converged_steps=ev.lloyd.converged_steps) if own else lloyd
         rivals["decentralised_lloyd"] = decentralised_lloyd(mine, ev.geodesic.spacing)
+    if planner:
+        rivals["planner"] = clairvoyant_planner(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)
     return rivals, how
 
 
@@ -263,7 +267,8 @@ class Phases:
 def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
                     lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False,
                     seeds: dict[Hashable, str | Path] | None = None, geodesic: bool = True, naive: bool = True,
-                    best_layout: bool = True, beside: bool = False, decentralised: bool = False) -> dict:
+                    best_layout: bool = True, beside: bool = False, decentralised: bool = False,
+                    planner: bool = False) -> dict:
     """A general policy (``export.export_general``) on ``region`` with ``n_agents`` buoys, zero-shot: behind the
     wall, on its local sensors, ``evaluate.episodes`` episodes from the evaluation seed at ``start``, losing
     ``lose`` buoys half-way, in a uniform ``current`` (m/s). Beside it, under the same physics, starts and events,
@@ -273,7 +278,8 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     outside the water at any step of any episode. ``seeds`` ({label: policy file}, e.g. every trained seed of
     the general policy) are run on the same episodes, each under ``"seeds"`` with its ``coverage`` and
     ``max_outside_m``; the baselines run once for all. ``geodesic``, ``naive`` and ``best_layout`` False leave
-    that comparison out (its ratio is then None); Lloyd always runs; ``decentralised`` adds decentralised Lloyd.
+    that comparison out (its ratio is then None); Lloyd always runs; ``decentralised`` adds decentralised Lloyd,
+    ``planner`` the clairvoyant planner.
     ``beside`` runs Lloyd's episodes in a second process while this one runs the rest (a command's wall time on
     two cores; the same numbers)."""
 
@@ -297,7 +303,7 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
         return {"coverage": covered(live),
                 "max_outside_m": float(distance_outside(region.polygon, positions).max()) * region.scale}
 
-    rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic, naive, decentralised)
+    rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic, naive, decentralised, planner)
     lloyd_key = lloyd_name(rivals)
     aside = Beside(lambda: covered(episodes(rivals[lloyd_key], None)[1])) if beside else None
     with Phases(region.name, 1 + len(others) + len(rivals) + best_layout, progress) as phase:

@@ -12,7 +12,10 @@ from replicate.core.sections import EVENTS
 from replicate.pipeline.report.rules import fmt
 
 # the comparisons of every cell, by what each one knows (``INFORMATION``)
-YARDSTICKS = ("naive_tuned", "decentralised_lloyd", "lloyd_tuned", "geodesic_lloyd", "best_layout", "upper_bound")
+YARDSTICKS = ("naive_tuned", "decentralised_lloyd", "lloyd_tuned", "geodesic_lloyd", "planner", "best_layout",
+              "upper_bound")
+CONTROLLERS = YARDSTICKS[:4]  # the baselines that steer from what they see, beside the policy
+READ_AGAINST = ("lloyd_tuned", "planner", "best_layout")  # every policy column is also read as a share of these
 INFORMATION = {
     "general policy": "its own sensors: the buoys it hears within the communication range, rays to the shore",
     "naive_tuned": "the buoys near it (it keeps away from them) and the map (it is drawn into the water)",
@@ -20,7 +23,10 @@ INFORMATION = {
                            "of where it has been",
     "lloyd_tuned": "the map and every buoy (clairvoyant)",
     "geodesic_lloyd": "the map and every buoy, cells and paths through the water (clairvoyant)",
-    "best_layout": "the map, no physics and no time: a layout searched offline (a heuristic, not a bound)",
+    "planner": "the map and every buoy: the best layout, each buoy assigned a place (Hungarian method on the "
+               "distances through the water) and sailed there under the same physics: what is reachable in T",
+    "best_layout": "the map, no physics and no time: a layout searched offline, every buoy in the water (a "
+                   "heuristic, not a bound)",
     "upper_bound": "min(1, N·A(Cov)/A(Reg)): no layout covers more",
 }
 KIND_TITLE = {"trained": "trained on (the training worlds)", "test": "test lakes (generated, a stream no choice read)",
@@ -140,9 +146,21 @@ def rivals_of(c: dict) -> list[float]:
     return [c["baselines"][k]["coverage"]["mean"] if k in c["baselines"] else float("nan") for k in YARDSTICKS]
 
 
-def row(label, n, start, event, general: str, seeds: list[float], cr: str, rivals: list[float], ratio: str) -> str:
+def row(label, n, start, event, general: str, seeds: list[float], cr: str, rivals: list[float],
+        ratios: list[str]) -> str:
     return (f"| {label} | {n} | {start} | {event} | {general} | {over_seeds(seeds)} | {cr} | "
-            + " | ".join("—" if v != v else f"{v:.3f}" for v in rivals) + f" | {ratio} |")
+            + " | ".join("—" if v != v else f"{v:.3f}" for v in rivals) + " | " + " | ".join(ratios) + " |")
+
+
+def nanmean(values) -> float:
+    """The mean of the values that are not NaN; NaN when none is (a comparison no cell has)."""
+    v = np.asarray(values, float)
+    return float(v[~np.isnan(v)].mean()) if (~np.isnan(v)).any() else float("nan")
+
+
+def share(value: float, of: float) -> float:
+    """value / of, NaN where ``of`` is missing (NaN) or 0."""
+    return value / of if of == of and of > 0 else float("nan")
 
 
 def cell_rows(params, cells: list[dict], summary: dict) -> list[str]:
@@ -151,8 +169,9 @@ def cell_rows(params, cells: list[dict], summary: dict) -> list[str]:
     out = []
     for c in cells:
         seeds, rivals = list(seed_coverages(c).values()), rivals_of(c)
+        ratios = [share(float(np.mean(seeds)), rivals[YARDSTICKS.index(k)]) for k in READ_AGAINST]
         out.append(row(c["region"], c["n_agents"], c["start"], c["event"], fmt(c["coverage"]), seeds,
-                       per_region_cr(params, summary, c), rivals, f"{np.mean(seeds) / rivals[2]:.3f}"))
+                       per_region_cr(params, summary, c), rivals, ["—" if r != r else f"{r:.3f}" for r in ratios]))
     return out
 
 
@@ -167,27 +186,52 @@ def pooled_rows(cells: list[dict]) -> list[str]:
         general = [c["coverage"]["mean"] for c in group]
         per_seed = [seed_coverages(c) for c in group]
         seeds = [float(np.mean([p[s] for p in per_seed])) for s in per_seed[0]]
-        ratios = [np.mean(list(p.values())) / c["baselines"]["lloyd_tuned"]["coverage"]["mean"]
-                  for p, c in zip(per_seed, group)]
+        ratios = np.array([[share(float(np.mean(list(p.values()))), rivals_of(c)[YARDSTICKS.index(k)])
+                            for k in READ_AGAINST] for p, c in zip(per_seed, group)])  # [lakes, READ_AGAINST]
         out.append(row(f"{len(group)} test lakes (mean)", n, start, event,
                        f"{np.mean(general):.3f} ({min(general):.3f}-{max(general):.3f})", seeds, "—",
-                       list(np.nanmean([rivals_of(c) for c in group], axis=0)),
-                       f"{np.mean(ratios):.3f} (worst {min(ratios):.3f})"))
+                       [nanmean(col) for col in np.array([rivals_of(c) for c in group]).T],
+                       ["—" if np.isnan(r).all() else f"{np.nanmean(r):.3f} (worst {np.nanmin(r):.3f})"
+                        for r in ratios.T]))
     return out
 
 
 def general_tables(params, cells: list[dict], summary: dict) -> list[str]:
     """One table per lake kind: every cell of the trained-on and the real lakes, the test lakes pooled."""
     head = ("| lake | N | start | event | general policy (deployed) | seeds: mean [95 % CI over seeds] | tuned CR | "
-            "naive_tuned | decentralised Lloyd | lloyd_tuned | geodesic Lloyd | best layout | upper bound | "
-            "seeds / lloyd_tuned |")
+            "naive_tuned | decentralised Lloyd | lloyd_tuned | geodesic Lloyd | planner | best layout | upper bound | "
+            "seeds / lloyd_tuned | seeds / planner | seeds / best layout |")
     lines = []
     for kind in KINDS:
         group = [c for c in cells if kind_of(params, c) == kind]
         if group:
-            lines += [f"**{KIND_TITLE[kind][0].upper()}{KIND_TITLE[kind][1:]}**", "", head, "|" + "---|" * 14,
+            lines += [f"**{KIND_TITLE[kind][0].upper()}{KIND_TITLE[kind][1:]}**", "", head, "|" + "---|" * 17,
                       *(pooled_rows(group) if kind == "test" else cell_rows(params, group, summary)), ""]
     return lines
+
+
+def share_table(params, cells: list[dict]) -> list[str]:
+    """Every controller as a share of the planner (what is reachable in T) and of the best layout (no physics, no
+    time), the mean over the cells of each lake kind (every start and event): the seeds' mean coverage for the
+    policy. Empty where no cell has the planner."""
+    kinds = {k: [c for c in cells if kind_of(params, c) == k and "planner" in c["baselines"]] for k in KINDS}
+    kinds = {k: group for k, group in kinds.items() if group}
+    if not kinds:
+        return []
+
+    def coverage(c, who) -> float:
+        return float(np.mean(list(seed_coverages(c).values()))) if who == "policy" else (
+            c["baselines"][who]["coverage"]["mean"] if who in c["baselines"] else float("nan"))
+
+    rows = ["| controller | " + " | ".join(f"{KIND_TITLE[k].split(' (')[0]}: of planner | of best layout"
+                                          for k in kinds) + " |", "|---|" + "---|" * (2 * len(kinds))]
+    for who in ("policy", *CONTROLLERS):
+        shares = [nanmean([share(coverage(c, who), coverage(c, of)) for c in group])
+                  for group in kinds.values() for of in ("planner", "best_layout")]
+        label = "general policy (mean of its seeds)" if who == "policy" else who
+        rows.append(f"| {label} | " + " | ".join("—" if v != v else f"{v:.3f}" for v in shares) + " |")
+    return ["Every controller as a share of the planner and of the best layout (mean over the cells of a kind, "
+            "every start and event):", "", *rows]
 
 
 def general_section(params, general: dict, summary: dict | None = None) -> list[str]:
@@ -216,5 +260,6 @@ def general_section(params, general: dict, summary: dict | None = None) -> list[
              "the training's losses and drifts (`tuning.general_baselines`), geodesic Lloyd Lloyd's. \"tuned CR\" "
              "is the per-region `tuned` CR-MARL of the robustness table (trained on that region, its own physics, "
              "mean [CI] over its seeds), where a scenario matches.", "",
-             *bar_table(params, cells), "", *general_tables(params, cells, summary or {})]
+             *bar_table(params, cells), "", *share_table(params, cells), "",
+             *general_tables(params, cells, summary or {})]
     return lines

@@ -1,0 +1,119 @@
+"""The clairvoyant planner: what is reachable by time T, the limit a controller is read against beside the layout.
+
+The best layout (``best_layout``) is a limit with no physics and no horizon: its buoys are placed, not sailed. The
+planner knows the map and every buoy and sails them there under the same physics, wall and drift as every other
+controller:
+
+1. the best layout of the buoys in service (``best_layout_once``: candidates in the water only);
+2. each buoy assigned one place of it, the assignment that minimises the total distance sailed through the water
+   (the Hungarian method, ``scipy.optimize.linear_sum_assignment``, on geodesic distances: one Dijkstra from each
+   place over the water graph of ``geodesic``);
+3. each buoy driven along its shortest path through the water toward its place with Lloyd's law,
+   a = gain·d·u − damping·v clipped to [−1, 1] (d the distance left to sail, u toward the path's point
+   ``lookahead`` metres ahead), which at Lloyd's tuned gains is top speed until the last few centimetres.
+
+It plans again whenever the fleet in service changes (a loss): the layout and assignment of the buoys left. It
+is a heuristic, not an optimum (the layout is the best found, the assignment minimises the sum, not the time
+of the last arrival), and it is the expert a learned controller imitates (LPAC's clairvoyant CVT, here with the
+layout that maximises coverage rather than the centroidal one).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse.csgraph import dijkstra
+
+from replicate.compare.baselines import Policy
+from replicate.compare.best_layout import best_layout_once
+from replicate.core.studies import LloydConfig
+from replicate.world.env import CoverageEnv
+from replicate.world.geodesic import WaterGraph, distinct_nearest, water_graph
+
+UNREACHABLE = 1e9  # the cost of a place a buoy cannot sail to (another basin of the water graph)
+
+
+@dataclass(frozen=True)
+class Places:
+    """A layout of M places and the ways to it: ``xy`` [M, 2], ``point`` [M] (each place's water point),
+    ``distance`` [M, C] (m, from every water point to the place through the water) and ``predecessor`` [M, C] (the
+    next water point on the way to the place; −9999 at the place's own point)."""
+
+    xy: np.ndarray
+    point: np.ndarray
+    distance: np.ndarray
+    predecessor: np.ndarray
+
+
+def places(g: WaterGraph, layout: np.ndarray) -> Places:
+    """The ways through the water graph ``g`` to every place of ``layout`` [M, 2]."""
+    point = distinct_nearest(g, layout)
+    distance, predecessor = dijkstra(g.graph, directed=False, indices=point, return_predecessors=True)
+    return Places(layout, point, distance, predecessor)
+
+
+def assign(p: Places, start_points: np.ndarray) -> np.ndarray:
+    """The place of each of M buoys at water points ``start_points`` [M]: the assignment of least total distance
+    through the water (Hungarian method) → [M] place indices."""
+    cost = p.distance[:, start_points].T  # [buoy, place]
+    buoys, place = linear_sum_assignment(np.where(np.isfinite(cost), cost, UNREACHABLE))
+    out = np.empty(len(start_points), int)
+    out[buoys] = place
+    return out
+
+
+def waypoints(g: WaterGraph, p: Places, goal: np.ndarray, xy: np.ndarray, lookahead: float) -> tuple[np.ndarray,
+                                                                                                     np.ndarray]:
+    """For buoys at xy [K, 2] bound for places ``goal`` [K]: (the point of each one's shortest path ``lookahead``
+    metres ahead, or the place itself when nearer [K, 2]; the distance left to sail [K])."""
+    here = g.tree.query(xy)[1]
+    left = p.distance[goal, here]
+    at = here.copy()
+    for _ in range(int(np.ceil(lookahead / g.spacing)) + 1):  # walk the path while within the lookahead
+        nxt = p.predecessor[goal, at]
+        step = (nxt >= 0) & (left - p.distance[goal, np.maximum(nxt, 0)] <= lookahead)
+        if not step.any():
+            break
+        at = np.where(step, nxt, at)
+    final = (at == p.point[goal]) | ~np.isfinite(left)  # the place's own point: head for the place itself
+    waypoint = np.where(final[:, None], p.xy[goal], g.points[at])
+    distance = np.where(final, np.linalg.norm(p.xy[goal] - xy, axis=1), left)
+    return waypoint, distance
+
+
+def clairvoyant_planner(cfg: LloydConfig, spacing: float, lookahead: float) -> Policy:
+    """The planner (module docstring) steering with Lloyd's law at ``cfg``'s gains, on the water graph of
+    ``spacing`` metres (``evaluate.geodesic``)."""
+    state: dict = {}
+
+    def layout_for(env: CoverageEnv, m: int) -> Places:
+        if m not in state["places"]:
+            c = env.coverage
+            xy, _ = best_layout_once(env.region.polygon, m, c.radius, c.edges)
+            state["places"][m] = places(state["graph"], xy)
+        return state["places"][m]
+
+    def policy(env: CoverageEnv) -> np.ndarray:
+        if state.get("region") is not env.region:
+            state.update(region=env.region, graph=water_graph(env.region.polygon, spacing), places={})
+        g = state["graph"]
+        alive = np.ones(env.pos.shape[:2], bool) if env.alive is None else env.alive
+        if env.t == 0 or state.get("alive") is None or not np.array_equal(state["alive"], alive):
+            goal = np.full(alive.shape, -1)  # a new episode or a loss: every environment plans again
+            for e, live in enumerate(alive):
+                p = layout_for(env, int(live.sum()))
+                goal[e, live] = assign(p, g.tree.query(env.pos[e, live])[1])
+            state.update(alive=alive.copy(), goal=goal)
+        action = np.zeros_like(env.pos)
+        for m in np.unique(alive.sum(axis=1)):  # environments with the same fleet in service share one layout
+            rows = alive & (alive.sum(axis=1) == m)[:, None]
+            xy = env.pos[rows]
+            waypoint, distance = waypoints(g, layout_for(env, int(m)), state["goal"][rows], xy, lookahead)
+            heading = waypoint - xy
+            heading /= np.maximum(np.linalg.norm(heading, axis=1, keepdims=True), 1e-9)
+            action[rows] = cfg.gain * distance[:, None] * heading - cfg.damping * env.vel[rows]
+        return np.clip(action, -1.0, 1.0)
+
+    return policy

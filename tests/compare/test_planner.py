@@ -1,0 +1,63 @@
+"""The clairvoyant planner: its assignment by distances through the water, and a fleet it sails to the best layout."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from shapely.geometry import box
+
+from replicate.compare.best_layout import best_layout_once
+from replicate.compare.evaluate import rollout
+from replicate.compare.planner import assign, clairvoyant_planner, places, waypoints
+from replicate.core.studies import LloydConfig, StartsConfig
+from replicate.world.coverage import coverage_fraction
+from replicate.world.env import CoverageEnv
+from replicate.world.geodesic import water_graph
+
+GAINS = LloydConfig(gain=55.4, damping=0.098, converged_steps=0)  # the tuned clairvoyant Lloyd's order of gains
+
+
+def u_lake():
+    """A 3 × 3 m lake whose middle is land from the bottom up to y = 2: two 1 m arms joined along the top."""
+    return box(0, 0, 3, 3).difference(box(1, 0, 2, 2))
+
+
+def test_the_assignment_minimises_the_distance_sailed_not_flown():
+    """Two buoys at the bottoms of the two arms' inner sides, two places: the right arm's bottom and the left arm's
+    top. Flown straight, each buoy is nearer the place across the land (1.7 m against 2.4 m); sailed around the
+    land's tip, that place is 4.5 m away, so each goes up or down its own arm."""
+    g = water_graph(u_lake(), 0.1)
+    p = places(g, np.array([[2.5, 0.3], [0.5, 2.7]]))
+    buoys = np.array([[0.8, 0.3], [2.2, 2.7]])
+    goal = assign(p, g.tree.query(buoys)[1])
+    assert goal.tolist() == [1, 0]
+    cost = p.distance[:, g.tree.query(buoys)[1]].T
+    assert cost[0, 0] > 4.4 and cost[0, 1] == pytest.approx(2.4, abs=0.15)
+
+
+def test_a_waypoint_leads_around_the_land():
+    """A buoy at the bottom of the left arm bound for the right arm's bottom heads up its own arm (its waypoint
+    is above it, not across the land), and the distance left is the one sailed."""
+    g = water_graph(u_lake(), 0.1)
+    p = places(g, np.array([[2.5, 0.3]]))
+    waypoint, left = waypoints(g, p, np.array([0]), np.array([[0.5, 0.3]]), lookahead=0.3)
+    assert waypoint[0, 1] > 0.45 and abs(waypoint[0, 0] - 0.5) < 0.2
+    assert left[0] > 4.4  # around the land's tip (1, 2)-(2, 2): 4.55 m sailed, 2 m flown
+    near, left = waypoints(g, p, np.array([0]), np.array([[2.45, 0.35]]), lookahead=0.3)
+    np.testing.assert_allclose(near[0], [2.5, 0.3])  # within reach of its place: the place itself
+    assert left[0] == pytest.approx(np.hypot(0.05, 0.05))
+
+
+def test_it_sails_the_fleet_to_the_best_layout(params, regions):
+    """From the corner patch, 9 buoys on the square reach within 1 % of the best layout's coverage by T, and after
+    three buoys are lost at T/2 the six left plan again and reach within 1 % of the best layout of six."""
+    square = regions["square"].polygon
+    env = CoverageEnv(regions["square"], params.world, params.coverage, n_envs=2)
+    c = params.coverage
+    trace = rollout(env, clairvoyant_planner(GAINS, 0.1, 0.3), 50, seed=1)
+    best = best_layout_once(square, 9, c.radius, c.edges)[1]
+    assert coverage_fraction(square, trace["live"], c.radius, c.edges).min() > 0.99 * best
+    trace = rollout(env, clairvoyant_planner(GAINS, 0.1, 0.3), 100, seed=1, starts=StartsConfig("corner", lose=3))
+    best6 = best_layout_once(square, 6, c.radius, c.edges)[1]
+    assert trace["live"].shape[1] == 6
+    assert coverage_fraction(square, trace["live"], c.radius, c.edges).min() > 0.99 * best6
