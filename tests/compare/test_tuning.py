@@ -114,14 +114,14 @@ def test_general_baselines_are_tuned_once_on_the_training_worlds_behind_the_wall
     small = {"general.regions": ["square"], "general.fleet": [6], "general.lakes": 1, "general.lake_fleet": [5, 5],
              "general.lake_ratio": [1.0, 1.0], "tuning.general_baselines.starts": 2,
              "tuning.general_baselines.naive_trials": 3, "tuning.general_baselines.lloyd_trials": 2,
-             "tuning.general_baselines.decentralised_trials": 2}
+             "tuning.general_baselines.decentralised_trials": 2, "tuning.general_baselines.geodesic_trials": 2}
     p = load_params(ROOT / "params.yaml", {**small, "tuning.general_baselines.storage": f"sqlite:///{tmp_path}/g.db"})
     worlds = tuning.general_worlds(p)
     assert [env.n_agents for _, env in worlds] == [6, 5] and all(env.wall for _, env in worlds)
     out = tuning.tune_general_baselines(p)
-    assert set(out) == {"naive_tuned", "lloyd_tuned", "decentralised_tuned"}
-    assert [out[k]["trials"] for k in ("naive_tuned", "lloyd_tuned", "decentralised_tuned")] == [3, 2, 2]
-    assert set(out["lloyd_tuned"]["gains"]) == set(out["decentralised_tuned"]["gains"]) == {"gain", "damping"}
+    kinds = ("naive_tuned", "lloyd_tuned", "decentralised_tuned", "geodesic_tuned")
+    assert set(out) == set(kinds) and [out[k]["trials"] for k in kinds] == [3, 2, 2, 2]
+    assert all(set(out[k]["gains"]) == {"gain", "damping"} for k in kinds[1:])
     score = tuning.general_baseline_coverage("lloyd", p, out["lloyd_tuned"]["gains"])
     assert score == pytest.approx(out["lloyd_tuned"]["tuning_coverage"])
     assert tuning.tune_general_baselines(p) == out  # finished: read back, nothing rerun

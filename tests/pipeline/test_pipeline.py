@@ -119,7 +119,8 @@ def test_dvc_repro_end_to_end(tmp_path):
     params["tuning"].update(starts=4)
     params["tuning"]["baselines"]["naive"]["trials"] = 3
     params["tuning"]["baselines"]["lloyd"]["trials"] = 3
-    params["tuning"]["general_baselines"].update(starts=2, naive_trials=2, lloyd_trials=2, decentralised_trials=2)
+    params["tuning"]["general_baselines"].update(starts=2, naive_trials=2, lloyd_trials=2, decentralised_trials=2,
+                                                    geodesic_trials=2)
     params["general"].update(regions=["square"], fleet=[6], lakes=1, lake_fleet=[5, 5], lake_ratio=[1.0, 1.0],
                              n_envs=4, episodes=8, episode_length=10, learning_starts=50, batch_size=16,
                              buffer_size=1000, update_every=8, seeds=[0, 1])
@@ -172,7 +173,7 @@ def test_dvc_repro_end_to_end(tmp_path):
     assert all((repo / "yardstick" / r["policy"]).is_file() for r in standing)
     general = json.loads((repo / "metrics" / "tuning" / "general_baselines.json").read_text())
     assert {k: v["trials"] for k, v in general.items()} == {"naive_tuned": 2, "lloyd_tuned": 2,
-                                                           "decentralised_tuned": 2}
+                                                           "decentralised_tuned": 2, "geodesic_tuned": 2}
     outline = json.loads((repo / "data" / "bedok_outline.geojson").read_text())
     assert outline["features"][0]["properties"]["source"] == "fallback"
     assert "bundled" in (repo / "notebooks" / "executed" / "fetch_outline.ipynb").read_text()

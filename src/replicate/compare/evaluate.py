@@ -30,6 +30,7 @@ from replicate.learn.policy import load_policy
 from replicate.learn.runs import core_seconds
 from replicate.learn.train import CURVE, load_actors
 from replicate.world import coverage
+from replicate.world.currents import Current
 from replicate.world.env import CoverageEnv
 from replicate.world.regions import Region
 from replicate.world.scenario import evaluation_env, general_evaluation_env, horizon
@@ -207,11 +208,12 @@ def general_baselines(params: Params, gains: dict | None, geodesic: bool = True,
                       decentralised: bool = False, planner: bool = False) -> tuple[dict[str, baselines.Policy], str]:
     """The general policy's comparisons → ({name: policy}, how their gains were set). With ``gains`` (the study of
     ``tuning.general_baselines``, carried in the policy's metadata): ``naive_tuned``, ``lloyd_tuned`` and
-    geodesic Lloyd with Lloyd's tuned gains, each tuned once on the policy's training worlds, never on the lake
-    evaluated; without them, the paper's hand-set ``naive`` and ``lloyd`` and geodesic Lloyd with Lloyd's.
+    geodesic Lloyd with its own tuned gains (Lloyd's where the study has none), each tuned once on the policy's
+    training worlds, never on the lake evaluated; without them, the paper's hand-set ``naive`` and ``lloyd`` and
+    geodesic Lloyd with Lloyd's.
     ``geodesic`` False leaves geodesic Lloyd out (its paths through the water cost the most of the three),
     ``naive`` False naive swarming; ``decentralised`` True adds decentralised Lloyd with its own tuned gains
-    (Lloyd's where there are none; ``compare.decentralised``: the buoys heard and the water sensed, on the geodesic
+    (likewise; ``compare.decentralised``: the buoys heard and the water sensed, on the geodesic
     raster); ``planner`` True adds the clairvoyant planner (``compare.planner``: the best layout, sailed to) steering
     with Lloyd's gains."""
     ev = params.evaluate
@@ -224,12 +226,16 @@ def general_baselines(params: Params, gains: dict | None, geodesic: bool = True,
     rivals = {names[1]: baselines.lloyd(lloyd)}
     if naive:
         rivals = {names[0]: baselines.naive_swarming(naive_gains)} | rivals
+
+    def own(name: str) -> LloydConfig:  # a Lloyd's own tuned gains where the study has them, else Lloyd's
+        mine = (gains or {}).get(name)
+        return LloydConfig(**mine["gains"], converged_steps=ev.lloyd.converged_steps) if mine else lloyd
+
     if geodesic:
-        rivals["geodesic_lloyd"] = baselines.geodesic_lloyd(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)
-    if decentralised:  # its own tuned gains where the study has them, else Lloyd's
-        own = (gains or {}).get("decentralised_tuned")
-        mine = LloydConfig(**own["gains"], converged_steps=ev.lloyd.converged_steps) if own else lloyd
-        rivals["decentralised_lloyd"] = decentralised_lloyd(mine, ev.geodesic.spacing)
+        rivals["geodesic_lloyd"] = baselines.geodesic_lloyd(own("geodesic_tuned"), ev.geodesic.spacing,
+                                                            ev.geodesic.lookahead)
+    if decentralised:
+        rivals["decentralised_lloyd"] = decentralised_lloyd(own("decentralised_tuned"), ev.geodesic.spacing)
     if planner:
         rivals["planner"] = clairvoyant_planner(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)
     return rivals, how
@@ -265,15 +271,16 @@ class Phases:
 
 
 def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
-                    lose: int = 0, current: tuple[float, float] | None = None, progress: bool = False,
+                    lose: int = 0, current: Current | tuple[float, float] | None = None, progress: bool = False,
                     seeds: dict[Hashable, str | Path] | None = None, geodesic: bool = True, naive: bool = True,
                     best_layout: bool = True, beside: bool = False, decentralised: bool = False,
                     planner: bool = False) -> dict:
     """A general policy (``export.export_general``) on ``region`` with ``n_agents`` buoys, zero-shot: behind the
     wall, on its local sensors, ``evaluate.episodes`` episodes from the evaluation seed at ``start``, losing
-    ``lose`` buoys half-way, in a uniform ``current`` (m/s). Beside it, under the same physics, starts and events,
-    the baselines of ``general_baselines`` (gains from the policy's metadata) and the best layout of the buoys
-    left in service (``best_layout``: no physics, the limit). → coverage (mean, lo, hi, n over episodes), the
+    ``lose`` buoys half-way, in ``current`` (a ``Current``, or a uniform flow in m/s). Beside it, under the same
+    physics, starts and events, the baselines of ``general_baselines`` (gains from the policy's metadata) and the
+    best layout of the buoys left in service (``best_layout``: no physics, the limit). → coverage (mean, lo, hi, n
+    over episodes), the
     baselines', ``ratio_to_lloyd``, ``ratio_to_best`` and ``max_outside_m``: the largest distance of any buoy
     outside the water at any step of any episode. ``seeds`` ({label: policy file}, e.g. every trained seed of
     the general policy) are run on the same episodes, each under ``"seeds"`` with its ``coverage`` and
@@ -309,7 +316,7 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     with Phases(region.name, 1 + len(others) + len(rivals) + best_layout, progress) as phase:
         phase("the policy")
         out = {"kind": "general policy", "policy": str(policy_path), "region": region.name, "n_agents": n_agents,
-               "start": start, "lose": lose, "current": list(current) if current else None, "steps": steps,
+               "start": start, "lose": lose, "current": current_record(current), "steps": steps,
                "episodes": ev.episodes, **learned(module, meta), "baselines": {}}
         for label, policy in others.items():
             phase(f"seed {label}")
@@ -325,6 +332,13 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     out["ratio_to_lloyd"] = out["coverage"]["mean"] / lloyd if lloyd > 0 else None
     out["ratio_to_best"] = out["coverage"]["mean"] / best if best > 0 else None
     return out
+
+
+def current_record(current: Current | tuple[float, float] | None) -> list[float] | dict | None:
+    """A current as a result records it: a uniform flow as [x, y] m/s, a vortex as ``Current.describe``."""
+    if isinstance(current, Current):
+        return current.describe() if current.core[0] > 0 else [float(v) for v in current.flow[0]]
+    return None if current is None else [float(v) for v in current]
 
 
 def limits(region: Region, params: Params, buoys: int, best: float | None) -> dict:
@@ -363,7 +377,7 @@ def fleet_policy(module) -> baselines.Policy:
 
 
 def general_episode(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str,
-                    lose: int = 0, current: tuple[float, float] | None = None,
+                    lose: int = 0, current: Current | tuple[float, float] | None = None,
                     seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One episode of a general policy as ``evaluate_policy`` runs it (the wall, its sensors, the event) for
     the figures: positions [T + 1, N, 2] and the buoys in service [T + 1, N]."""

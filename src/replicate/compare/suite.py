@@ -24,7 +24,9 @@ from typing import Literal
 
 import numpy as np
 from shapely import affinity
+from shapely.geometry import Polygon
 
+from replicate.world.currents import Current, lake_vortex
 from replicate.world.lakes import lake_name, test_stream
 from replicate.world.regions import Region, make_region, region_from_file
 from replicate.world.scenario import named_lakes
@@ -91,17 +93,24 @@ def suite_lose(suite, n_agents: int) -> int:
     return max(1, int(n_agents * suite.lose_fraction))
 
 
-def suite_event(suite, event: str, n_agents: int, heading: float = 0.0) -> tuple[int, tuple[float, float] | None]:
-    """An event of ``EVENTS`` as (buoys lost at T/2, uniform current m/s or None), sized as ``suite`` sizes it;
-    the drift flows toward ``heading`` (radians from +x)."""
+def suite_event(suite, event: str, n_agents: int, heading: float = 0.0,
+                water: Polygon | None = None) -> tuple[int, Current | None]:
+    """An event of ``EVENTS`` as (buoys lost at T/2, the water's current or None), sized as ``suite`` sizes it: the
+    uniform drift flows toward ``heading`` (radians from +x); the vortex over ``water`` (``lake_vortex``) turns
+    counter-clockwise for a heading in the upper half of the circle, clockwise in the lower."""
     lose = suite_lose(suite, n_agents) if event == "lose" else 0
-    drift = (suite.current * math.cos(heading), suite.current * math.sin(heading))
-    return lose, drift if event == "current" else None
+    if event == "current":
+        return lose, Current.uniform((suite.current * math.cos(heading), suite.current * math.sin(heading)))
+    if event == "vortex":
+        if water is None:
+            raise ValueError("the vortex event needs the lake's water")
+        return lose, lake_vortex(water, suite.current if heading < math.pi else -suite.current)
+    return lose, None
 
 
 def drift_heading(seed: int, cell: SuiteCell) -> float:
-    """The direction of a cell's drift, uniform on the circle, drawn from the evaluation seed and the cell (its
-    lake, fleet and start): the drift is not always along +x, where it would carry buoys released in the lower-left
-    corner along a long lake."""
+    """The direction of a cell's drift (and the turn of its vortex), uniform on the circle, drawn from the
+    evaluation seed and the cell (its lake, fleet and start): the drift is not always along +x, where it would carry
+    buoys released in the lower-left corner along a long lake."""
     key = zlib.crc32(f"{cell.region}/{cell.n_agents}/{cell.start}".encode())
     return float(np.random.default_rng([seed, key]).uniform(0.0, 2.0 * math.pi))

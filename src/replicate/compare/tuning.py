@@ -176,12 +176,14 @@ def policy_with_gains(kind: str, gains: dict, params: Params) -> baselines.Polic
     lloyd = LloydConfig(**gains, converged_steps=params.evaluate.lloyd.converged_steps)
     if kind == "decentralised":
         return decentralised_lloyd(lloyd, params.evaluate.geodesic.spacing)
+    if kind == "geodesic":
+        return baselines.geodesic_lloyd(lloyd, params.evaluate.geodesic.spacing, params.evaluate.geodesic.lookahead)
     return baselines.lloyd(lloyd)
 
 
 def gain_space(params: Params, kind: str):
-    """The search of a baseline kind's gains: decentralised Lloyd searches Lloyd's space."""
-    return getattr(params.tuning.baselines, "lloyd" if kind == "decentralised" else kind)
+    """The search of a baseline kind's gains: decentralised and geodesic Lloyd search Lloyd's space."""
+    return getattr(params.tuning.baselines, "lloyd" if kind in ("decentralised", "geodesic") else kind)
 
 
 def baseline_coverage(kind: str, gains: dict, params: Params, region: Region, seed: int, episodes: int) -> float:
@@ -266,13 +268,21 @@ def general_baseline_score(kind: str, params: Params, gains: dict) -> tuple[floa
     return general_baseline_coverage(kind, params, gains), time.process_time() - t0
 
 
+GENERAL_KINDS = ("naive", "lloyd", "decentralised", "geodesic")  # the general baselines tuned, each a study
+# what a kind's controller reads besides the world, part of its study's name: a changed sensor or raster is a new
+# study (naive swarming and clairvoyant Lloyd read neither)
+READS = {"decentralised": lambda p: (p.general.sensors, p.evaluate.geodesic.spacing),
+         "geodesic": lambda p: (p.evaluate.geodesic,)}
+
+
 def tune_general_baselines(params: Params, executor: str = "local", workers: int = 1, progress: bool = False) -> dict:
-    """Naive swarming's, Lloyd's and decentralised Lloyd's studies on the general policy's training worlds →
-    ``{"naive_tuned": {gains, tuning_coverage, budget}, "lloyd_tuned": {...}, "decentralised_tuned": {...}}``.
+    """Naive swarming's, Lloyd's, decentralised Lloyd's and geodesic Lloyd's studies on the general policy's
+    training worlds → ``{"naive_tuned": {gains, tuning_coverage, budget}, "lloyd_tuned": {...},
+    "decentralised_tuned": {...}, "geodesic_tuned": {...}}``.
 
     Locally the studies run side by side in ``workers`` processes, each one's trials in order (the same trials as
     one process running them all); with Ray each study spreads its trials over the cluster in turn."""
-    kinds = ("naive", "lloyd", "decentralised")
+    kinds = GENERAL_KINDS
     if executor == "local":
         open_storage(params.tuning.general_baselines.storage)  # its tables, before two processes open it
         results = map_jobs(functools.partial(general_study, params), kinds, "local", workers,
@@ -290,7 +300,8 @@ def general_study(params: Params, kind: str, executor: str = "local", progress: 
     search = gain_space(params, kind)
     events = (params.general.lose_fraction, params.general.current_speed)
     name = study_name(f"general-{kind}", search.space, tc.starts_seed, gb.starts, tc.sampler_seed, worlds,
-                      params.world, params.coverage, params.general.episode_length, events)
+                      params.world, params.coverage, params.general.episode_length, events,
+                      *READS.get(kind, lambda p: ())(params))
     study = open_study(gb.storage, name, tc.sampler_seed)
     trials = getattr(gb, f"{kind}_trials")
     run_trials(study, functools.partial(general_baseline_score, kind, params), search.space, trials, executor,

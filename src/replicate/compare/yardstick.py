@@ -165,9 +165,10 @@ def _yardstick_lake(job: dict) -> list[dict]:
     (first, path), *others = job["policies"].items()
     rows = []
     for cell in map(lambda c: YardstickCell(**c), job["cells"]):
-        lose, current = suite_event(su, cell.event, cell.n_agents)
-        r = evaluate_policy(path, at_density(region, drawn_for, cell.n_agents), params, cell.n_agents, cell.start,
-                            lose, current, seeds=dict(others), geodesic=False, naive=False, best_layout=False)
+        lake = at_density(region, drawn_for, cell.n_agents)
+        lose, current = suite_event(su, cell.event, cell.n_agents, water=lake.polygon)
+        r = evaluate_policy(path, lake, params, cell.n_agents, cell.start, lose, current, seeds=dict(others),
+                            geodesic=False, naive=False, best_layout=False)
         coverage = {first: r["coverage"]["mean"], **{k: v["coverage"]["mean"] for k, v in r["seeds"].items()}}
         lloyd = lloyd_name(r["baselines"])  # lloyd_tuned, or the hand-set lloyd for policies without gains
         rows.append({**dataclasses.asdict(cell), "lloyd": r["baselines"][lloyd]["coverage"]["mean"],

@@ -29,7 +29,9 @@ from replicate.core.schema import (
     section,
 )
 
-EVENTS = ("none", "lose", "current")  # the suite's events: still water, a share of the fleet lost at T/2, a drift
+# the suite's events: still water, a share of the fleet lost at T/2, a uniform drift, a vortex over the lake
+EVENTS = ("none", "lose", "current", "vortex")
+DRIFTS = ("current", "vortex")  # the events of moving water
 START_KINDS = ("corner", "random")  # where the suite and the yardstick release a fleet
 
 
@@ -225,7 +227,7 @@ class SuiteConfig:
     starts: tuple[Text, ...]  # of ``START_KINDS``
     events: tuple[Text, ...]  # of ``EVENTS``, on every lake and fleet
     lose_fraction: Annotated[Num, In(0, 0.5, open_lo=True)]  # "lose": this share lost at T/2 (most of a fleet stays)
-    current: NonNegative  # the "current" event: a uniform drift of this speed, m/s
+    current: NonNegative  # the "current" event: a uniform drift of this speed, m/s; "vortex": its peak speed
     episodes: Count  # per cell
 
     @model_validator(mode="after")

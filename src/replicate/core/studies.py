@@ -148,7 +148,8 @@ class HandSearch:
 
 @section
 class GeneralBaselineSearch:
-    """Naive swarming's and Lloyd's gains for the general policy's comparisons: one set for every lake, tuned on
+    """The gains of the general policy's comparisons (naive swarming, clairvoyant, decentralised and geodesic
+    Lloyd): one set for every lake, tuned on
     its training worlds behind the wall (``tuning.tune_general_baselines``), in the spaces of ``baselines``."""
 
     storage: Storage  # SQLAlchemy URL of the studies
@@ -157,6 +158,7 @@ class GeneralBaselineSearch:
     naive_trials: Count
     lloyd_trials: Count
     decentralised_trials: Count  # decentralised Lloyd (``compare.decentralised``), in Lloyd's space of gains
+    geodesic_trials: Count  # geodesic Lloyd (``baselines.geodesic_lloyd``), in Lloyd's space of gains
 
 
 @section

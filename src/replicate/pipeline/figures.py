@@ -213,8 +213,9 @@ def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[P
     written.append(animate_trace(bedok.polygon, trace, alive, c.radius, c.edges,
                                  f"general policy, Bedok, {lose} of {buoys} lost at T/2",
                                  fig / "anim_general_lose.gif"))
-    _, flow = suite_event(su, "current", buoys, drift_heading(params.evaluate.seed,
-                                                          SuiteCell("bedok", buoys, "random", "current", "real")))
+    _, drift = suite_event(su, "current", buoys, drift_heading(params.evaluate.seed,
+                                                           SuiteCell("bedok", buoys, "random", "current", "real")))
+    flow = tuple(drift.flow[0])
     trace, alive = general_episode(policy, bedok, params, buoys, "random", current=flow)
     written.append(animate_trace(bedok.polygon, trace, alive, c.radius, c.edges, "general policy, Bedok, drift",
                                  fig / "anim_general_current.gif", flow=np.asarray(flow)))

@@ -111,7 +111,8 @@ def _suite_lake(job: dict) -> list[dict]:
     kept, *others = job["policies"].items()  # the kept seed's, then the others'
     out = []
     for cell in map(lambda c: SuiteCell(**c), job["cells"]):
-        lose, current = suite_event(su, cell.event, cell.n_agents, drift_heading(params.evaluate.seed, cell))
+        lose, current = suite_event(su, cell.event, cell.n_agents, drift_heading(params.evaluate.seed, cell),
+                                    region.polygon)
         result = evaluate_policy(kept[1], region, params, cell.n_agents, cell.start, lose, current,
                                  seeds=dict(others), decentralised=True, planner=True)
         seeds = {kept[0]: {k: result[k] for k in ("coverage", "max_outside_m")}, **result.get("seeds", {})}

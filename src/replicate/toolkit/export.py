@@ -92,7 +92,7 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
         metadata["symmetry"] = saved["symmetry"]
     if baseline_gains:
         metadata["baseline_gains"] = {k: {"gains": baseline_gains[k]["gains"], "study": baseline_gains[k].get("study")}
-                                      for k in ("naive_tuned", "lloyd_tuned", "decentralised_tuned")
+                                      for k in ("naive_tuned", "lloyd_tuned", "decentralised_tuned", "geodesic_tuned")
                                       if k in baseline_gains}
     save_policy(module, metadata, out)
     return metadata

@@ -37,6 +37,21 @@ class Current:
         return cls(np.zeros((e, 2)), center, np.broadcast_to(np.asarray(peak, float), e).copy(),
                    np.broadcast_to(np.asarray(core, float), e).copy())
 
+    def tiled(self, n_envs: int) -> Current:
+        """One environment's current in each of ``n_envs`` environments."""
+        if len(self.flow) != 1:
+            raise ValueError(f"only one environment's current is tiled, this one has {len(self.flow)}")
+        return Current(*(np.repeat(a, n_envs, axis=0) for a in (self.flow, self.center, self.peak, self.core)))
+
+    def describe(self) -> dict:
+        """One environment's current as a record says it (m/s, m): {"flow"} and, with a vortex, {"vortex": {"center",
+        "peak", "core"}}."""
+        out = {"flow": [float(v) for v in self.flow[0]]}
+        if self.core[0] > 0:
+            out["vortex"] = {"center": [float(v) for v in self.center[0]], "peak": float(self.peak[0]),
+                             "core": float(self.core[0])}
+        return out
+
     def at(self, pos: np.ndarray) -> np.ndarray:
         """The water's velocity at positions [E, N, 2] → [E, N, 2]."""
         rel = pos - self.center[:, None, :]
@@ -50,6 +65,14 @@ class Current:
     def max_speed(self) -> float:
         """The fastest the water moves anywhere, in any environment."""
         return float((np.linalg.norm(self.flow, axis=1) + np.abs(self.peak)).max(initial=0.0))
+
+
+def lake_vortex(water: Polygon, peak: float) -> Current:
+    """A vortex over a whole lake: centred in the middle of the water's box, its core a third of the box's larger
+    side (the training's vortices' size, ``random_current``), turning at ``peak`` m/s (counter-clockwise when
+    positive): the water near the middle still, the water around it moving most."""
+    minx, miny, maxx, maxy = water.bounds
+    return Current.vortex([(minx + maxx) / 2, (miny + maxy) / 2], peak, max(maxx - minx, maxy - miny) / 3)
 
 
 def random_current(rng: np.random.Generator, n_envs: int, water: Polygon, max_speed: float) -> Current:

@@ -70,15 +70,15 @@ def general_env(params: Params, gc: GeneralConfig, region: Region, n_agents: int
 
 
 def general_evaluation_env(params: Params, region: Region, n_agents: int, n_envs: int, sensors,
-                           current: tuple[float, float] | None) -> tuple[CoverageEnv, int]:
+                           current: Current | tuple[float, float] | None) -> tuple[CoverageEnv, int]:
     """The world a general policy is evaluated in → (environment, T): behind the wall, T for the region's size
-    (``horizon``), in a uniform ``current`` (m/s) when given; observing ``sensors`` (a ``SensorsConfig``, the
-    policy's), or nothing for the baselines (None)."""
+    (``horizon``), in ``current`` when given (one environment's ``Current``, or a uniform flow in m/s); observing
+    ``sensors`` (a ``SensorsConfig``, the policy's), or nothing for the baselines (None)."""
     steps = horizon(params.general, region, params.world.region_area)
     config = dataclasses.replace(params.general, episode_length=steps, sensors=sensors or params.general.sensors)
     env = general_env(params, config, region, n_agents, n_envs, 0, reward=False, sensors=sensors is not None)
     if current is not None:
-        env.set_current(Current.uniform(np.broadcast_to(np.asarray(current, float), (n_envs, 2))))
+        env.set_current((current if isinstance(current, Current) else Current.uniform(current)).tiled(n_envs))
     return env, steps
 
 

@@ -8,7 +8,7 @@ from scipy import stats
 
 from replicate.compare.suite import KINDS, lake_kinds
 from replicate.core.params import Cell, run_config
-from replicate.core.sections import EVENTS
+from replicate.core.sections import DRIFTS, EVENTS
 from replicate.pipeline.report.rules import fmt
 
 # the comparisons of every cell, by what each one knows (``INFORMATION``)
@@ -76,7 +76,7 @@ def general_checks(cells: list[dict], t) -> list[tuple[str, list[dict], list[boo
         own = key.get((c["region"], c["n_agents"], c["start"]), {})
         return all(s in own and v >= share * own[s] for s, v in seed_coverages(c).items())
 
-    lose, drift = [c for c in cells if c["event"] == "lose"], [c for c in cells if c["event"] == "current"]
+    lose, drift = [c for c in cells if c["event"] == "lose"], [c for c in cells if c["event"] in DRIFTS]
     narrow = [c for c in still if rival(c, "best_layout") - rival(c, "lloyd_tuned") >= t.narrow_gap]
     return [
         (f"still water: ≥ {t.of_lloyd:.0%} of lloyd_tuned", still,
@@ -89,9 +89,9 @@ def general_checks(cells: list[dict], t) -> list[tuple[str, list[dict], list[boo
          [every_seed(c, lambda v, c=c: v > rival(c, "lloyd_tuned")) for c in narrow]),
         (f"buoys lost at T/2: ≥ {t.lose_of_lloyd:.0%} of what lloyd_tuned re-covers", lose,
          [every_seed(c, lambda v, c=c: v >= t.lose_of_lloyd * rival(c, "lloyd_tuned")) for c in lose]),
-        (f"drift: ≥ {t.current_of_lloyd:.0%} of lloyd_tuned in the same drift", drift,
+        (f"drift or vortex: ≥ {t.current_of_lloyd:.0%} of lloyd_tuned in the same water", drift,
          [every_seed(c, lambda v, c=c: v >= t.current_of_lloyd * rival(c, "lloyd_tuned")) for c in drift]),
-        (f"drift: ≥ {t.current_of_still:.0%} of its own still-water coverage", drift,
+        (f"drift or vortex: ≥ {t.current_of_still:.0%} of its own still-water coverage", drift,
          [keeps(c, t.current_of_still) for c in drift]),
     ]
 
@@ -129,7 +129,7 @@ def per_region_cr(params, summary: dict, c: dict) -> str:
     scenario (``evaluate.robustness``) with the same start, the same buoys lost and the region's T (its own
     physics, not the wall), as mean [CI] over seeds, its T written out where the suite's differs; "—" where there
     is none."""
-    if c["region"] not in params.regions or c["n_agents"] != params.world.n_agents or c["event"] == "current":
+    if c["region"] not in params.regions or c["n_agents"] != params.world.n_agents or c["event"] in DRIFTS:
         return "—"
     runs = summary.get("runs", {}).get(Cell("tuned", "cr", c["region"]).key, {}).get("robustness", {})
     lose = c.get("lose", 0) if c["event"] == "lose" else 0
@@ -241,7 +241,9 @@ def general_section(params, general: dict, summary: dict | None = None) -> list[
     trained = [r for r in params.regions if r in params.general.regions]
     named_real = [r for r in params.regions if r not in params.general.regions]
     said = {"none": "still water", "lose": f"{su.lose_fraction:.0%} of the fleet lost at T/2 (coverage of the rest "
-            "at T)", "current": f"a uniform drift of {su.current} m/s, its heading drawn per cell"}
+            "at T)", "current": f"a uniform drift of {su.current} m/s, its heading drawn per cell",
+            "vortex": f"a vortex over the lake (peak {su.current} m/s at a third of the lake's size from its middle; "
+                      "its turn drawn per cell)"}
     lines = ["## One policy for every lake", "",
              f"The general policy (`{general['policy']}`, one network trained on the training worlds of `general`, "
              f"local sensors only, the compass symmetry `{params.general.learner.symmetry}`) on three kinds of "
@@ -256,8 +258,9 @@ def general_section(params, general: dict, summary: dict | None = None) -> list[
              "cell meets a bar only when every seed does. The deployed policy (the best-validated seed) is shown "
              "with its interval over episodes. What each controller knows:", "",
              *[f"- {name}: {what}" for name, what in INFORMATION.items()], "",
-             "naive_tuned, lloyd_tuned and decentralised Lloyd carry gains tuned once on the training worlds with "
-             "the training's losses and drifts (`tuning.general_baselines`), geodesic Lloyd Lloyd's. \"tuned CR\" "
+             "naive_tuned, lloyd_tuned, decentralised and geodesic Lloyd carry gains tuned once on the training "
+             "worlds with the training's losses and drifts (`tuning.general_baselines`); the planner steers with "
+             "lloyd_tuned's. \"tuned CR\" "
              "is the per-region `tuned` CR-MARL of the robustness table (trained on that region, its own physics, "
              "mean [CI] over its seeds), where a scenario matches.", "",
              *bar_table(params, cells), "", *share_table(params, cells), "",

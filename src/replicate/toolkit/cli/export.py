@@ -103,7 +103,7 @@ def read_baseline_gains(path: str | None) -> dict | None:
     try:
         gains = json.loads(Path(path).read_text())
         build(NaiveConfig, gains["naive_tuned"]["gains"], "naive_tuned.gains")  # finite numbers, every gain
-        for lloyd in ("lloyd_tuned", "decentralised_tuned"):  # decentralised Lloyd's, where the study has them
+        for lloyd in ("lloyd_tuned", "decentralised_tuned", "geodesic_tuned"):  # the other two where the study has them
             if lloyd in gains or lloyd == "lloyd_tuned":
                 build(LloydConfig, {**gains[lloyd]["gains"], "converged_steps": 0}, f"{lloyd}.gains")
     except FileNotFoundError:
