@@ -97,3 +97,24 @@ def test_a_lake_hundreds_of_radii_across_gets_a_coarser_grid(monkeypatch):
     xy, coverage = bl.best_layout(lake, 9, 0.5, 30)
     assert max(seen) <= bl.MAX_CANDIDATES * 1.02
     assert coverage == pytest.approx(9 * covered_area(box(-1, -1, 1, 1), np.zeros((1, 2)), 0.5, 30) / 3600, rel=1e-9)
+
+
+def test_lloyds_layout_is_a_start_of_the_search(params):
+    """On an L-shaped lake Lloyd's layout (from a layout bunched in one corner) ends with its points in the water
+    and centroidal (a further step moves no point), and the best layout covers at least as much as Lloyd's
+    layout refined by the same local search, with every place in the water."""
+    import shapely
+    from shapely.geometry import Polygon
+
+    from replicate.compare.baselines import voronoi_centroids
+    from replicate.compare.best_layout import lloyd_layout, local_search
+
+    r, e = params.coverage.radius, params.coverage.edges
+    lake = Polygon([(0, 0), (4, 0), (4, 1.5), (1.5, 1.5), (1.5, 4), (0, 4)])
+    start = np.array([[0.2 + 0.1 * k, 0.2 + 0.05 * k] for k in range(6)])
+    xy = lloyd_layout(lake, start, iterations=500, tolerance=1e-6)
+    assert shapely.intersects_xy(lake, xy[:, 0], xy[:, 1]).all()
+    np.testing.assert_allclose(voronoi_centroids(lake, xy), xy, atol=1e-4)
+    refined = covered_area(lake, local_search(lake, xy, 0.1, r, e, 1e-3), r, e) / lake.area
+    best, coverage = best_layout(lake, 6, r, e)
+    assert coverage >= refined - 1e-9 and shapely.intersects_xy(lake, best[:, 0], best[:, 1]).all()
