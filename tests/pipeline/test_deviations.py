@@ -22,14 +22,18 @@ def test_every_ablation_row_quotes_the_measured_effect():
         (row,) = [r for r in rows if f"(`{change}`)" in r]
         for region in params.ablation.regions:
             d = measured[f"{change}/{region}"]["delta"]
-            quote = f"Δ {fmt_delta(d)}, {ablation_effect(d)}"
+            quote = f"Δ {fmt_delta(d)}, {ablation_effect(d, params.report.margin)}"
             assert quote in row, f"DEVIATIONS row of {change} should quote {quote!r}"
             quoted = re.findall(r"Ablation \(`REPORT.md`\): Δ ([+-][\d.]+ \[[^\]]+\]), ([a-z]+(?: [a-z]+)*)", row)
-            assert quoted == [(fmt_delta(d), ablation_effect(d))], f"{change}: one quote, the measured one"
+            assert quoted == [(fmt_delta(d), ablation_effect(d, params.report.margin))], \
+                f"{change}: one quote, the measured one"
 
 
 def test_the_reading_of_an_interval():
-    assert ablation_effect({"lo": -0.01, "hi": 0.02}) == "no measurable effect"
-    assert ablation_effect({"lo": 0.001, "hi": 0.02}) == "helps"
-    assert ablation_effect({"lo": -0.03, "hi": -0.01}) == "hurts"
-    assert ablation_effect({"lo": float("nan"), "hi": float("nan")}) == "no measurable effect"
+    """Against ``report.margin`` (0.01), as every comparison: an interval clear of 0 but not of the margin shows no
+    effect beyond it (the ablation's `discount` row once read "helps" at a lower end of +0.000)."""
+    assert ablation_effect({"lo": -0.01, "hi": 0.02}, 0.01) == "no effect beyond the margin"
+    assert ablation_effect({"lo": 0.001, "hi": 0.02}, 0.01) == "no effect beyond the margin"
+    assert ablation_effect({"lo": 0.011, "hi": 0.02}, 0.01) == "helps"
+    assert ablation_effect({"lo": -0.03, "hi": -0.011}, 0.01) == "hurts"
+    assert ablation_effect({"lo": float("nan"), "hi": float("nan")}, 0.01) == "no effect beyond the margin"

@@ -25,9 +25,11 @@ def group(per_seed, nn=0.8, conv=(5000, 5000, 5000), seeds=None):
         "coverage_per_seed": list(per_seed),
         "nearest_neighbour": stats.mean_interval([nn] * n),
         "nearest_neighbour_per_seed": [nn + 0.001 * k for k in range(n)],
+        "nearest_neighbour_inside_per_seed": [nn + 0.001 * k for k in range(n)],
         "fraction_inside": stats.mean_interval([1.0] * n),
         "convergence_episode": list(conv),
-        "convergence_by_tolerance": {"1.0": list(conv), "0.5": list(conv), "2.0": list(conv)},
+        "convergence_by_tolerance": {band: {"1.0": list(conv), "0.5": list(conv), "2.0": list(conv)}
+                                     for band in ("range", "final")},
         "core_seconds": stats.mean_interval([100.0] * n),
         "robustness": {},
     }
@@ -98,10 +100,9 @@ def test_claims_follow_their_rules(params):
 
 def test_a_verdict_on_its_threshold_moves_in_the_sensitivity_column(params):
     s = ablated(params)
-    s["runs"]["tuned/cr/rectangle"]["convergence_by_tolerance"]["1.0"] = [7400, 7400, 7400]  # inside 5,000 ± 2,500
-    s["runs"]["tuned/cr/rectangle"]["convergence_episode"] = [7400, 7400, 7400]
-    for f in ("0.5", "2.0"):
-        s["runs"]["tuned/cr/rectangle"]["convergence_by_tolerance"][f] = [7400, 7400, 7400]
+    s["runs"]["tuned/cr/rectangle"]["convergence_episode"] = [7400, 7400, 7400]  # inside 5,000 ± 2,500
+    for f in ("1.0", "0.5", "2.0"):
+        s["runs"]["tuned/cr/rectangle"]["convergence_by_tolerance"]["range"][f] = [7400, 7400, 7400]
     regions = ["square", "rectangle", "bedok"]
     assert claims(s, "tuned", regions, params.report)[0].verdict == "reproduced"
     first = sensitivity(s, "tuned", regions, params.report)[0]
@@ -223,3 +224,23 @@ def test_the_report_counts_the_arithmetic_of_its_runs():
     assert "all 3 runs were trained by the same arithmetic, fingerprint `f518c001171e43a2`" in same
     mixed = arithmetic_line([{"arithmetic": "aaaa"}, {"arithmetic": "aaaa"}, {"arithmetic": "bbbb"}, {}])
     assert "3 fingerprints" in mixed and "`aaaa` (2 runs), `bbbb` (1 run), `not recorded` (1 run)" in mixed
+
+
+def test_claims_one_and_two_say_their_other_reading(params):
+    """Claim 1 judged with the band of the curve's range and claim 2 with the agents inside, each with the verdict
+    of the other reading beside it: here SW's agents leave the region (far apart over every agent, bunched inside)
+    and SW's return converges only within a band of its final value's size."""
+    s = ablated(params)
+    sw = s["runs"]["tuned/sw/rectangle"]
+    sw["nearest_neighbour_per_seed"] = [3.0, 3.0, 3.0]  # far apart over every agent ...
+    sw["nearest_neighbour_inside_per_seed"] = [0.1, 0.1, 0.1]  # ... bunched among those inside
+    sw["convergence_by_tolerance"]["final"] = {f: [2000, 2000, 2000] for f in ("1.0", "0.5", "2.0")}
+    sw["convergence_by_tolerance"]["range"] = {f: [None, None, None] for f in ("1.0", "0.5", "2.0")}
+    regions = ["square", "rectangle", "bedok"]
+    one, two = claims(s, "tuned", regions, params.report)[:2]
+    assert one.verdict == "reproduced" and "of the final return's size (SPEC §8): partly" in one.evidence
+    assert "inside the region" in two.rule and "rectangle: Δ CR − SW +0.7" in two.evidence
+    assert "Over every agent: not reproduced" in two.evidence or "Over every agent: partly" in two.evidence
+    final = dataclasses.replace(params.report, convergence_band="final", spread="all")
+    one, two = claims(s, "tuned", regions, final)[:2]
+    assert one.verdict == "partly" and "over every agent" in two.rule

@@ -88,6 +88,7 @@ def summarise(region: Region, trace: np.ndarray, radius: float, edges: int) -> d
     return {
         "coverage": metrics.mean_ci(cov),
         "nearest_neighbour": metrics.mean_ci(nn),
+        "nearest_neighbour_inside": metrics.mean_ci(metrics.nearest_neighbour_inside(region.polygon, xy)),
         "fraction_inside": metrics.mean_ci(inside),
         "per_episode": {"coverage": cov.round(6).tolist()},
         "example": {"final_positions": xy[0].round(5).tolist(), "trajectory": trace[:, 0].round(4).tolist()},
@@ -137,8 +138,9 @@ def evaluate_run(run_dir: str | Path, params: Params, region: Region, actors: st
         out = summarise(region, pos, rc.coverage.radius, rc.coverage.edges)
         out["robustness"] = robustness(env, policy, params, region, rc, bar)
     curve = artifacts.read_curve(run_dir / CURVE)
-    conv = {str(f): metrics.convergence_episode(curve["team_reward"], ev.converge_window, f * ev.converge_tolerance,
-                                                ev.converge_final) for f in (1.0, *params.report.sensitivity)}
+    conv = {band: {str(f): metrics.convergence_episode(curve["team_reward"], ev.converge_window,
+                                                       f * ev.converge_tolerance, ev.converge_final, band)
+                   for f in (1.0, *params.report.sensitivity)} for band in metrics.BANDS}
     run = json.loads((run_dir / "run.json").read_text())
     out.update(
         kind="run",
@@ -147,8 +149,9 @@ def evaluate_run(run_dir: str | Path, params: Params, region: Region, actors: st
         region=ident["region"],
         seed=ident["seed"],
         episodes=ident["episodes"],
-        convergence_episode=conv["1.0"],
-        convergence_by_tolerance=conv,  # tolerance factor → convergence episode, for the report's sensitivity
+        convergence_episode=conv[params.report.convergence_band]["1.0"],
+        # band → tolerance factor → convergence episode: the report's sensitivity, and the other band's verdict
+        convergence_by_tolerance=conv,
         training_coverage_last100=float(curve["coverage"][-100:].mean()),
         core_seconds=core_seconds(run),  # one core's time for the run
     )

@@ -9,7 +9,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import shapely
 from scipy import stats
+from shapely.geometry import Polygon
 
 
 def mean_nearest_neighbour(xy: np.ndarray) -> np.ndarray:
@@ -22,6 +24,20 @@ def mean_nearest_neighbour(xy: np.ndarray) -> np.ndarray:
     return d.min(axis=2).mean(axis=1)
 
 
+def nearest_neighbour_inside(region: Polygon, xy: np.ndarray) -> np.ndarray:
+    """Spread over the region: mean over the agents inside it (the closed region) of the distance to the nearest
+    other agent inside; 0 where fewer than two are inside (agents outside spread over nothing of it, and an agent
+    that leaves no longer inflates the spread). xy [E, N, 2] → [E]."""
+    inside = shapely.intersects_xy(region, xy[..., 0], xy[..., 1])  # [E, N]
+    d = np.linalg.norm(xy[:, :, None, :] - xy[:, None, :, :], axis=-1)
+    n = xy.shape[1]
+    d[:, np.arange(n), np.arange(n)] = np.inf
+    d = np.where(inside[:, None, :], d, np.inf).min(axis=2)  # each agent's nearest other agent inside
+    counted = inside & np.isfinite(d)
+    return np.where(counted.sum(axis=1) >= 2, np.where(counted, d, 0.0).sum(axis=1) / np.maximum(counted.sum(1), 1),
+                    0.0)
+
+
 def moving_average(x: np.ndarray, window: int) -> np.ndarray:
     """Trailing moving average, defined from index window − 1 on. [T] → [T − window + 1]."""
     x = np.asarray(x, dtype=float)
@@ -31,19 +47,27 @@ def moving_average(x: np.ndarray, window: int) -> np.ndarray:
     return (c[window:] - c[:-window]) / window
 
 
-def convergence_episode(curve: np.ndarray, window: int = 200, tolerance: float = 0.05, final: int = 500) -> int | None:
+BANDS = ("range", "final")  # the convergence band's width: a share of the curve's range, or of its final value
+
+
+def convergence_episode(curve: np.ndarray, window: int = 200, tolerance: float = 0.05, final: int = 500,
+                        band: str = "range") -> int | None:
     """First episode after which the ``window``-episode moving average of ``curve`` stays within ±tolerance
     of its final value (the mean of the last ``final`` episodes); ``None`` if there is none (SPEC §8).
 
-    The band is ``tolerance·|final value|``. Returns the episode index at the end of the first qualifying
-    window.
+    The band is ``tolerance`` × the moving average's range (max − min) with ``band="range"``, or ``tolerance`` ×
+    |final value| with ``band="final"`` (SPEC §8's reading, which a final value near 0 makes narrow and a constant
+    bonus wide). Returns the episode index at the end of the first qualifying window.
     """
     curve = np.asarray(curve, dtype=float)
     if len(curve) < max(window, final):
         return None
+    if band not in BANDS:
+        raise ValueError(f"band must be one of {BANDS}, got {band!r}")
     target = curve[-final:].mean()
     ma = moving_average(curve, window)
-    outside = np.abs(ma - target) > tolerance * abs(target)
+    width = ma.max() - ma.min() if band == "range" else abs(target)
+    outside = np.abs(ma - target) > tolerance * width
     if outside[-1]:
         return None
     last_out = np.flatnonzero(outside)

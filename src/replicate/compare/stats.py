@@ -22,6 +22,12 @@ class Bootstrap:
     level: float = 0.95
     resamples: int = 10_000
     seed: int = 0
+    t_below: int = 10  # fewer values than this: a Student-t interval beside the percentile one (``mean_interval``)
+
+    @classmethod
+    def of(cls, report) -> Bootstrap:
+        """The bootstrap of ``params.yaml`` ``report``."""
+        return cls(report.level, report.resamples, report.seed, report.t_below)
 
 
 DEFAULT = Bootstrap()  # params.yaml `report` gives the pipeline's; this is for a quick look
@@ -45,12 +51,19 @@ def _clean(values) -> np.ndarray:
 
 
 def mean_interval(values, boot: Bootstrap = DEFAULT) -> dict:
-    """Mean of ``values`` and its bootstrap interval → {mean, lo, hi, n, iqm}."""
+    """Mean of ``values`` and its bootstrap interval → {mean, lo, hi, n, iqm}, and with 2 to ``boot.t_below`` − 1
+    values the Student-t interval beside it ({t_lo, t_hi}): at five seeds the percentile bootstrap keeps a null
+    difference about 9 % of the time where 2.5 % is nominal (it is too narrow by the factor t/z and the bias of
+    the resampled spread), the t interval about as often as it says for values near normal."""
     v = _clean(values)
     if len(v) == 0:
         return {"mean": math.nan, "lo": math.nan, "hi": math.nan, "n": 0, "iqm": math.nan}
     lo, hi = _interval([v], lambda x, axis=-1: np.mean(x, axis=axis), boot)
-    return {"mean": float(v.mean()), "lo": lo, "hi": hi, "n": int(len(v)), "iqm": iqm(v)}
+    out = {"mean": float(v.mean()), "lo": lo, "hi": hi, "n": int(len(v)), "iqm": iqm(v)}
+    if 2 <= len(v) < boot.t_below:
+        half = float(stats.t.ppf(0.5 + boot.level / 2, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v)))
+        out |= {"t_lo": out["mean"] - half, "t_hi": out["mean"] + half}
+    return out
 
 
 def iqm(values) -> float:

@@ -198,7 +198,7 @@ def verdict(scores: dict[SeedPolicy, float], params: Params) -> dict:
     seeds (``report``'s level, resamples and seed) and P(a candidate seed beats a baseline seed); the candidate
     is kept when the interval lies above ``yardstick.min_gain``."""
     r = params.report
-    boot = stats.Bootstrap(r.level, r.resamples, r.seed)
+    boot = stats.Bootstrap.of(r)
     base, cand = side_scores(scores, "baseline"), side_scores(scores, "candidate")
     diff = stats.difference([cand], [base], boot)
     better = stats.probability_of_improvement([cand], [base], boot)

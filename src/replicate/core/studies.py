@@ -196,9 +196,12 @@ class ReportConfig:
 
     level: Annotated[Num, In(0, 1, open_lo=True, open_hi=True)]  # confidence level of every interval
     resamples: Count  # bootstrap resamples
+    t_below: Count  # fewer seeds than this: a Student-t interval beside the percentile bootstrap
     seed: Seed  # the bootstrap's generator
     margin: NonNegative  # coverage: "A beats B" when the CI of mean(A) − mean(B) lies above this
     spread_margin: NonNegative  # metres: "CR spreads more" when the CI of Δ nearest-neighbour lies above this
+    convergence_band: Literal["range", "final"]  # claim 1's band: a share of the curve's range, or of its final value
+    spread: Literal["inside", "all"]  # claim 2's spread: nearest neighbours among the agents inside, or all agents
     about_episodes: Whole  # "about 5,000 episodes": within this many episodes of 5,000
     not_converged_after: Whole  # "not converged by 10,000": no convergence episode, or one after this
     majority: Share  # claim 1 holds for a method when at least this fraction of its seeds meets it

@@ -81,8 +81,7 @@ def evaluate_matrix(params_path: str, runs_dir: str, metrics_dir: str, regions, 
              "out": str(metrics_dir / "baselines" / f"{name}-{region}.json")}
             for name in BASELINES for region in regions] + jobs
     results = dict(map_jobs(_evaluate_one, jobs, executor, workers))
-    summary = summarise_metrics(results.values(), stats.Bootstrap(params.report.level, params.report.resamples,
-                                                                   params.report.seed))
+    summary = summarise_metrics(results.values(), stats.Bootstrap.of(params.report))
     summary = split_ablation(summary, params)
     artifacts.write_json(metrics_dir / "summary.json", summary)
     return summary
@@ -114,7 +113,7 @@ def split_ablation(summary: dict, params: Params) -> dict:
     coverage (with the change) and the derived config's (without it), each over the ablation's seeds, and the
     bootstrap interval of Δ = with − without."""
     ab, r = params.ablation, params.report
-    boot = stats.Bootstrap(r.level, r.resamples, r.seed)
+    boot = stats.Bootstrap.of(r)
     runs = dict(summary["runs"])
     rows = {}
     for change, keys in ab.changes.items():
@@ -165,10 +164,13 @@ def summarise_metrics(results, boot: stats.Bootstrap = stats.DEFAULT) -> dict:
             "coverage_per_seed": [round(r["coverage"]["mean"], 4) for r in rs],
             "nearest_neighbour": stats.mean_interval([r["nearest_neighbour"]["mean"] for r in rs], boot),
             "nearest_neighbour_per_seed": [round(r["nearest_neighbour"]["mean"], 4) for r in rs],
+            "nearest_neighbour_inside": stats.mean_interval([r["nearest_neighbour_inside"]["mean"] for r in rs],
+                                                            boot),
+            "nearest_neighbour_inside_per_seed": [round(r["nearest_neighbour_inside"]["mean"], 4) for r in rs],
             "fraction_inside": stats.mean_interval([r["fraction_inside"]["mean"] for r in rs], boot),
             "convergence_episode": [r["convergence_episode"] for r in rs],
-            "convergence_by_tolerance": {f: [r["convergence_by_tolerance"][f] for r in rs]
-                                         for f in rs[0].get("convergence_by_tolerance", {})},
+            "convergence_by_tolerance": {band: {f: [r["convergence_by_tolerance"][band][f] for r in rs] for f in by}
+                                         for band, by in rs[0].get("convergence_by_tolerance", {}).items()},
             "core_seconds": stats.mean_interval([r["core_seconds"] for r in rs], boot),
             "robustness": {name: {"coverage": stats.mean_interval([r["robustness"][name]["coverage"] for r in rs],
                                                                   boot),

@@ -19,6 +19,12 @@ def fmt(ci: dict) -> str:
     return f"{ci['mean']:.3f} [{ci['lo']:.3f}, {ci['hi']:.3f}]"
 
 
+def fmt_t(ci: dict) -> str:
+    """The Student-t interval beside a percentile one (``stats.mean_interval``, fewer seeds than
+    ``report.t_below``), or a dash."""
+    return f"[{ci['t_lo']:.3f}, {ci['t_hi']:.3f}]" if "t_lo" in ci else "—"
+
+
 def fmt_delta(d: dict, key: str = "delta") -> str:
     if d["lo"] != d["lo"]:
         return f"{d[key]:+.3f}"
@@ -53,7 +59,7 @@ def scaled(rules: ReportConfig, factor: float) -> ReportConfig:
 
 
 def bootstrap(rules: ReportConfig) -> stats.Bootstrap:
-    return stats.Bootstrap(rules.level, rules.resamples, rules.seed)
+    return stats.Bootstrap.of(rules)
 
 
 def beats(a: list[float], b: list[float] | float, margin: float, boot: stats.Bootstrap) -> tuple[bool, dict]:

@@ -54,20 +54,21 @@ def robustness_rows(summary: dict, regions: list[str], scenarios: list[str]) -> 
     return rows
 
 
-def ablation_effect(delta: dict) -> str:
-    """The reading of an ablation row's Δ (with − without): an interval that contains 0 (or none) has no
-    measurable effect; above 0 the change helps, below it hurts."""
+def ablation_effect(delta: dict, margin: float) -> str:
+    """The reading of an ablation row's Δ (with − without), by the rule of every comparison (``report.margin``): an
+    interval above +margin helps, one below −margin hurts; any other (or none) shows no effect beyond the
+    margin."""
     lo, hi = delta["lo"], delta["hi"]
-    return "no measurable effect" if lo != lo or lo <= 0 <= hi else "helps" if lo > 0 else "hurts"
+    return "helps" if lo > margin else "hurts" if hi < -margin else "no effect beyond the margin"
 
 
-def ablation_rows(summary: dict) -> list[str]:
+def ablation_rows(summary: dict, margin: float) -> list[str]:
     lines = []
     for key, r in summary.get("ablation", {}).items():
         change, region = astuple(RegionKey.parse(key))
         keys = ", ".join(f"`{k}`" for k in r["keys"])
         d = r["delta"]
-        effect = ablation_effect(d)
+        effect = ablation_effect(d, margin)
         lines.append(f"| `{change}` | {keys} | {region} | {fmt(r['with'])} | {fmt(r['without'])} | "
                      f"{fmt_delta(d)} | {effect} | {r['with_per_seed']} | {r['without_per_seed']} |")
     return lines

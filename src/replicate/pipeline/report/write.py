@@ -14,7 +14,7 @@ from replicate.core import artifacts
 from replicate.core.params import Cell, RegionKey
 from replicate.pipeline.report.claims import claims, comparisons, cpu_timed, sensitivity, targets
 from replicate.pipeline.report.general import general_section
-from replicate.pipeline.report.rules import fmt, span
+from replicate.pipeline.report.rules import fmt, fmt_t, span
 from replicate.pipeline.report.tables import (
     ablation_rows,
     arithmetic_line,
@@ -70,6 +70,7 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
                {RegionKey.parse(k).region for k in summary["baselines"]}]
     context = {
         "episodes": params.evaluate.episodes, "level": f"{rules.level:.0%}", "margin": f"{rules.margin:.3f}",
+        "t_below": rules.t_below,
         "sensitivity": " and × ".join(map(str, rules.sensitivity)), "target_seconds": f"{rules.target_seconds:.0f}",
         "missing": missing_runs(params, summary), "seeds": seeds_section(params),
         "claims": {config: list(zip(claims(summary, config, regions, rules),
@@ -79,7 +80,7 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
         "wall_timed": bool(timing) and not cpu_timed(timing.get("runs", [])),
         "budgets": budgets(params, tuning), **robustness_context(params, summary, regions),
         "general": general_section(params, general, summary) if general is not None else [],
-        "ablation": ablation_rows(summary), "ablation_seeds": ", ".join(map(str, params.ablation.seeds)),
+        "ablation": ablation_rows(summary, rules.margin), "ablation_seeds": ", ".join(map(str, params.ablation.seeds)),
         "runs": [(Cell.parse(key), r) for key, r in summary["runs"].items()],
         "baselines": [(*astuple(RegionKey.parse(key)), b) for key, b in sorted(summary["baselines"].items())],
         "training": training_line(timing), "stage_times": stage_times,
@@ -90,6 +91,7 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
                              lstrip_blocks=True, keep_trailing_newline=True, undefined=jinja2.StrictUndefined,
                              autoescape=False)
     env.filters["fmt"] = fmt
+    env.filters["fmt_t"] = fmt_t
     text = env.get_template(TEMPLATE).render(**context)
     artifacts.atomic_write_text(out, text)
     return text
