@@ -125,13 +125,16 @@ def test_report_text_states_rules_budgets_and_seeds(params, tmp_path):
     tuning = {"baselines": {"naive/square": {"gains": {"attraction": 2.0}, "tuning_coverage": 0.77, "trials": 150,
                                              "cpu_seconds": 40.0, "study": "naive-square-x"}}}
     (tmp_path / "baselines.json").write_text(json.dumps(tuning["baselines"]))
+    (tmp_path / "method.json").write_text(json.dumps({"study": "m", "trials": 12, "cpu_seconds": 1034.0,
+                                                      "tuning_coverage": 0.5}))
     text = write_report(params, str(tmp_path / "summary.json"), str(tmp_path / "none.json"),
-                        {"baselines": str(tmp_path / "baselines.json"), "method": str(tmp_path / "none.json")}, [],
+                        {"baselines": str(tmp_path / "baselines.json"), "method": str(tmp_path / "method.json")}, [],
                         str(tmp_path / "R.md"), {})
     assert "## Ablation of `tuned`" in text and "| `update_schedule` |" in text
     assert "| naive_tuned | square | 50 | 0.710 |" in text  # the baseline table gives each baseline's T
     assert "| naive/square gains | Optuna TPE `naive-square-x` | 150 trials | 40 |" in text
     assert f"{params.tuning.hand_search.configurations} configurations" in text
+    assert "compares two searches as well as two methods" in text and "study of 1,034 CPU-s" in text
     assert "| rule | verdict | sensitivity |" in text
     assert str(params.evaluate.seed) in text and "10, 11, 12" in text
     assert (tmp_path / "R.md").read_text() == text

@@ -37,6 +37,20 @@ def budgets(rules_params, tuning: dict) -> list[str]:
     return rows
 
 
+def budget_confound(rules_params, tuning: dict) -> str:
+    """The reading of CR against SW under ``tuned``: what each method's values cost to find (the hand search for
+    one, the ``tuning.method`` study for the other), so that the difference is not read as the method's alone."""
+    hs, method = rules_params.tuning.hand_search, tuning.get("method")
+    if not method:
+        return ""
+    ms = rules_params.tuning.method
+    return (f"`{hs.config}` {hs.method.upper()}-MARL against {ms.method.upper()}-MARL compares two searches as well as "
+            f"two methods: {hs.method.upper()}'s values came from a hand search of {hs.cpu_seconds:,.0f} CPU-s "
+            f"({hs.configurations} configurations), {ms.method.upper()}'s from an Optuna study of "
+            f"{method['cpu_seconds']:,.0f} CPU-s on {', '.join(ms.regions)}; under `paper` both train with the same "
+            "values and no search.")
+
+
 def robustness_rows(summary: dict, regions: list[str], scenarios: list[str]) -> list[str]:
     """Markdown rows of the robustness table, one column per scenario: runs as mean [CI] over seeds, baselines
     as one value each (deterministic, same starts)."""

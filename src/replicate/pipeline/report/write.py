@@ -18,6 +18,7 @@ from replicate.pipeline.report.rules import fmt, fmt_t, span
 from replicate.pipeline.report.tables import (
     ablation_rows,
     arithmetic_line,
+    budget_confound,
     budgets,
     missing_runs,
     robustness_rows,
@@ -78,7 +79,8 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
                    for config in sorted({c.config for c in cells})},
         "comparisons": comparisons(summary, regions, rules), "targets": targets(summary, timing, rules),
         "wall_timed": bool(timing) and not cpu_timed(timing.get("runs", [])),
-        "budgets": budgets(params, tuning), **robustness_context(params, summary, regions),
+        "budgets": budgets(params, tuning), "budget_confound": budget_confound(params, tuning),
+        **robustness_context(params, summary, regions),
         "general": general_section(params, general, summary) if general is not None else [],
         "ablation": ablation_rows(summary, rules.margin), "ablation_seeds": ", ".join(map(str, params.ablation.seeds)),
         "runs": [(Cell.parse(key), r) for key, r in summary["runs"].items()],
