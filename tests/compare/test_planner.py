@@ -61,3 +61,28 @@ def test_it_sails_the_fleet_to_the_best_layout(params, regions):
     best6 = best_layout_once(square, 6, c.radius, c.edges)[1]
     assert trace["live"].shape[1] == 6
     assert coverage_fraction(square, trace["live"], c.radius, c.edges).min() > 0.99 * best6
+
+
+def test_the_general_training_learns_from_the_planner(params, tmp_path):
+    """``general.learner.imitation``: without a teacher the trainer refuses to start; with the planner it trains
+    (two small worlds, 48 episodes) and every transition it stores carries the planner's action for the state the
+    learner was in, within the action box and zero for no buoy in service."""
+    import dataclasses
+
+    from replicate.compare.planner import planner_teacher
+    from replicate.learn.general_train import GeneralTrainer
+
+    from ..learn.test_general_train import tiny
+
+    gc = tiny(params)
+    gc = dataclasses.replace(gc, learner=dataclasses.replace(gc.learner, imitation="beside"))
+    with pytest.raises(ValueError, match="teacher"):
+        GeneralTrainer(params, 4, tmp_path / "none", progress=False, config=gc)
+    trainer = GeneralTrainer(params, 4, tmp_path / "taught", progress=False, config=gc,
+                             teacher=planner_teacher(params, None))
+    summary = trainer.run()
+    assert summary["status"] == "finished"
+    memory = trainer.loop.memories[0]
+    expert, live = memory.data["expert"][:memory.size], memory.data["live"][:memory.size]
+    assert np.abs(expert).max() <= 1.0 and np.abs(expert[live]).max() > 0.5  # the planner steers hard
+    assert not expert[~live].any()

@@ -227,3 +227,31 @@ def test_the_update_on_the_buoys_in_service_is_the_padded_update(pool):
     for net in ("actor", "critic", "actor_target", "critic_target"):
         for p, q in zip(getattr(rows, net).parameters(), getattr(padded, net).parameters()):
             torch.testing.assert_close(p, q, rtol=1e-4, atol=1e-5)
+
+
+def test_imitation_moves_the_actor_toward_the_teacher():
+    """``imitation: alone``: 60 updates on one minibatch whose teacher says (0.5, −0.5) for every buoy bring the
+    actor's actions there (the critic's term left out); ``none`` ignores the teacher (the same update with or
+    without its labels); ``beside`` adds the imitation term to the actor-critic loss, so its actor differs from
+    both."""
+    import dataclasses
+
+    b = fleet(6, batch=32, seed=3)
+    b.expert = torch.tensor([0.5, -0.5]).expand(32, 6, 2).clone()
+    cfg = SharedLearnerConfig(hidden=32, embed=16, actor_lr=3e-3)
+    actors = {}
+    for mode in ("none", "beside", "alone"):
+        learner = SharedMADDPG(OD, AD, dataclasses.replace(cfg, imitation=mode), seed=0)
+        before = (learner.actor(b.obs)[0] - b.expert).abs().mean().item()
+        for _ in range(60):
+            learner.update(b)
+        actors[mode] = learner.actor(b.obs)[0].detach()
+        if mode == "alone":
+            assert (actors[mode] - b.expert).abs().mean().item() < 0.1 < before
+    unlabelled = SharedMADDPG(OD, AD, cfg, seed=0)
+    b.expert = None
+    for _ in range(60):
+        unlabelled.update(b)
+    torch.testing.assert_close(unlabelled.actor(b.obs)[0].detach(), actors["none"])
+    assert not torch.allclose(actors["beside"], actors["none"]) and not torch.allclose(actors["beside"],
+                                                                                         actors["alone"])

@@ -148,7 +148,7 @@ def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spaci
     return best
 
 
-@functools.lru_cache(maxsize=64)
+@functools.lru_cache(maxsize=512)
 def _best_layout(region_wkb: bytes, n_agents: int, radius: float, edges: int) -> tuple[np.ndarray, float]:
     return best_layout(shapely.from_wkb(region_wkb), n_agents, radius, edges)
 

@@ -83,6 +83,16 @@ def waypoints(g: WaterGraph, p: Places, goal: np.ndarray, xy: np.ndarray, lookah
     return waypoint, distance
 
 
+def planner_teacher(params, gains: dict | None) -> Policy:
+    """The planner as the general training's teacher (``general.learner.imitation``): steering with the tuned
+    Lloyd gains of ``gains`` (``tuning.general_baselines``' result) where given, else the hand-set
+    ``evaluate.lloyd``, on the evaluation's water graph (``evaluate.geodesic``)."""
+    ev = params.evaluate
+    lloyd = ev.lloyd if not gains else LloydConfig(**gains["lloyd_tuned"]["gains"],
+                                                   converged_steps=ev.lloyd.converged_steps)
+    return clairvoyant_planner(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)
+
+
 def clairvoyant_planner(cfg: LloydConfig, spacing: float, lookahead: float) -> Policy:
     """The planner (module docstring) steering with Lloyd's law at ``cfg``'s gains, on the water graph of
     ``spacing`` metres (``evaluate.geodesic``)."""

@@ -208,7 +208,11 @@ class SharedLearnerConfig:
     pool_neighbours: Annotated[Int, In(0, MAX_AGENTS)] = 0  # the critic pools each buoy's K nearest (0: all)
     symmetry: Symmetry = "none"  # "d4": the actor averaged over the compass's quarter turns and mirrors; "d4_frame":
     # run once in each observation's canonical frame of them
-    OPTIONAL: ClassVar[tuple[str, ...]] = ("symmetry",)  # left out of a run's identity at their default (as sensors')
+    imitation: Literal["none", "beside", "alone"] = "none"  # the clairvoyant planner as a teacher: its action for
+    # every buoy at every state the learner visits (DAgger's labels), imitated beside the actor-critic loss or alone
+    imitation_weight: NonNegative = 1.0  # the weight of the imitation loss, mean squared action error per buoy
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("symmetry", "imitation", "imitation_weight")  # left out of a run's
+    # identity at their default (as sensors')
 
 
 def check_starts(starts: tuple[str, ...], where: str) -> None:

@@ -7,6 +7,11 @@ may start scattered over the water instead of in the corner patch, lose up to a 
 drift in a current.
 Transitions of fleets of different sizes share one replay memory, padded to the largest fleet and masked.
 
+With ``general.learner.imitation``, a teacher (the clairvoyant planner, ``compare.planner``, which the caller
+builds: this wing does not read the comparisons) gives its action for every buoy in every state the learner
+visits; the memory keeps it beside the transition, and the actor's loss imitates it beside the actor-critic
+term or alone (DAgger's relabelling of the learner's own states, Ross et al. 2011).
+
 The run keeps the actor that covered best on its validation starts (every named region from the corner, each
 world scattered, fixed seeds drawn from the run's seed) and writes into its folder: ``actor.pt`` (weights and
 the sensors it reads), ``curve.csv.gz`` (one row per batch), ``run.json``.
@@ -16,6 +21,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +39,7 @@ from replicate.learn.runs import general_identity
 from replicate.learn.shared_maddpg import SharedMADDPG
 from replicate.learn.training_worlds import World, make_worlds
 from replicate.world.currents import random_current
-from replicate.world.env import observation_columns
+from replicate.world.env import CoverageEnv, observation_columns
 from replicate.world.regions import Region
 from replicate.world.scenario import general_env
 
@@ -46,13 +52,19 @@ class GeneralTrainer:
 
     def __init__(self, params: Params, seed: int, out: str | Path, progress: bool = True,
                  config: GeneralConfig | None = None, worlds: list[tuple[Region, int]] | None = None,
-                 actor: dict | None = None):
+                 actor: dict | None = None, teacher: Callable[[CoverageEnv], np.ndarray] | None = None):
         """``worlds`` [(region, N)] replace the training worlds of ``config`` (fine-tuning on one lake: its
         validation starts from the corner patch and scattered); ``actor``, a state dict of ``SharedActor``, starts
         the actor (and its target) from trained weights, validated before the first batch so that the run keeps
-        them unless training improves on them."""
+        them unless training improves on them; ``teacher(env) → actions [E, N, 2]`` labels every state the
+        learner visits, which ``general.learner.imitation`` needs."""
         self.params, self.gc, self.seed, self.out = params, config or params.general, seed, Path(out)
         self.progress = progress
+        imitating = self.gc.learner.imitation != "none"
+        if imitating and teacher is None:
+            raise ValueError(f"general.learner.imitation: {self.gc.learner.imitation!r} learns from a teacher, and "
+                             "none was given (the pipeline and `replicate train-general` give the planner)")
+        self.teacher = teacher if imitating else None
         streams = np.random.SeedSequence(seed).spawn(5)  # worlds, events, noise, sampling, validation
         self.rng_events = np.random.default_rng(streams[1])
         self.noise = torch.Generator().manual_seed(int(streams[2].generate_state(1)[0]))
@@ -71,7 +83,8 @@ class GeneralTrainer:
         if actor is not None:
             self.agent.actor.load_state_dict(actor)
             self.agent.actor_target.load_state_dict(actor)
-        memory = Replay(self.gc.buffer_size, max(w.n_agents for w in self.worlds), obs_dim, fleets=True)
+        memory = Replay(self.gc.buffer_size, max(w.n_agents for w in self.worlds), obs_dim, fleets=True,
+                        expert=imitating)
         self.loop = TrainingLoop(self.agent, self.gc, [memory], [np.random.default_rng(streams[3])], stacked=False)
         self.rows: list[list] = []
 
@@ -119,10 +132,12 @@ class GeneralTrainer:
                 obs = env.observe()
             live = np.ones((env.n_envs, world.n_agents), bool) if env.alive is None else env.alive.copy()
             pos = env.pos.copy()
+            taught = {} if self.teacher is None else {"expert": self.teacher(env).astype(np.float32)}
             act = self.agent.act(obs, sigma, self.noise).numpy()
             step = env.step(act)
             writer.push(t == gc.episode_length - 1, live=live, obs=obs, act=act, rew=step.pay, pos=pos,
-                        next_obs=step.obs, next_pos=env.pos.copy(), next_live=live)  # bootstrap on those in service
+                        next_obs=step.obs, next_pos=env.pos.copy(), next_live=live,  # bootstrap on those in service
+                        **taught)
             obs = step.obs
             for stats in self.loop.learn(env.n_envs):
                 losses.append(stats["critic_loss"])
@@ -165,10 +180,12 @@ class GeneralTrainer:
         return summary
 
 
-def train_recorded(params, seed: int, out: Path, progress: bool = False) -> dict:
-    """Train one seed of ``params.general`` into ``out`` and record its identity in ``run.json``, so that a stage
-    finding it there with the same settings keeps it (``finished_general``). → the run's summary."""
-    summary = GeneralTrainer(params, seed, out, progress=progress).run()
+def train_recorded(params, seed: int, out: Path, progress: bool = False,
+                   teacher: Callable[[CoverageEnv], np.ndarray] | None = None) -> dict:
+    """Train one seed of ``params.general`` into ``out`` (with ``teacher`` where it imitates one) and record its
+    identity in ``run.json``, so that a stage finding it there with the same settings keeps it
+    (``finished_general``). → the run's summary."""
+    summary = GeneralTrainer(params, seed, out, progress=progress, teacher=teacher).run()
     summary["identity"] = general_identity(params, seed)
     artifacts.write_json(out / "run.json", summary)
     return summary

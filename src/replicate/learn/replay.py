@@ -19,8 +19,9 @@ import torch
 class Batch:
     """Sampled transitions, [B, N, ...]: obs/next_obs [B, N, obs_dim], act [B, N, act_dim], rew [B, N] (m-step
     returns), disc [B] (γᵐ of the bootstrap at next_obs). Of fleets (``Replay(fleets=True)``) also pos/next_pos
-    [B, N, 2] and the buoys in service, live/next_live [B, N] bool. A stack of S runs' minibatches has a leading
-    [S] on each field (``stack``)."""
+    [B, N, 2] and the buoys in service, live/next_live [B, N] bool; with a teacher (``Replay(expert=True)``) its
+    action in each state, expert [B, N, act_dim]. A stack of S runs' minibatches has a leading [S] on each field
+    (``stack``)."""
 
     obs: torch.Tensor
     act: torch.Tensor
@@ -31,6 +32,7 @@ class Batch:
     next_pos: torch.Tensor | None = None
     live: torch.Tensor | None = None
     next_live: torch.Tensor | None = None
+    expert: torch.Tensor | None = None
 
     @classmethod
     def stack(cls, batches: list[Batch]) -> Batch:
@@ -46,12 +48,15 @@ class Replay:
     numpy (zero pages cost no memory until written: a memory of 10⁶ transitions is allocated whole) and leave as
     tensors that share their memory."""
 
-    def __init__(self, capacity: int, n_max: int, obs_dim: int, act_dim: int = 2, fleets: bool = False):
+    def __init__(self, capacity: int, n_max: int, obs_dim: int, act_dim: int = 2, fleets: bool = False,
+                 expert: bool = False):
         shapes = {"obs": ((obs_dim,), np.float32), "act": ((act_dim,), np.float32), "rew": ((), np.float32),
                   "next_obs": ((obs_dim,), np.float32)}
         if fleets:
             shapes |= {"pos": ((2,), np.float32), "next_pos": ((2,), np.float32), "live": ((), bool),
                        "next_live": ((), bool)}
+        if expert:  # a teacher's action in the state of ``obs``
+            shapes["expert"] = ((act_dim,), np.float32)
         self.data = {k: np.zeros((capacity, n_max, *tail), dtype) for k, (tail, dtype) in shapes.items()}
         self.disc = np.zeros(capacity, np.float32)
         self.capacity, self.n_max, self.ptr, self.size = capacity, n_max, 0, 0

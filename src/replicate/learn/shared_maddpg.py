@@ -189,7 +189,11 @@ class SharedMADDPG:
         with torch.no_grad():
             pool = critic.pooled(b.obs, b.act, now)
         mu, pre = self.actor(obs)
-        actor_loss = -critic.score(obs, mu, pool).mean() + cfg.actor_reg * (pre**2).mean()
+        actor_loss = cfg.actor_reg * (pre**2).mean()
+        if cfg.imitation != "alone":
+            actor_loss = actor_loss - critic.score(obs, mu, pool).mean()
+        if cfg.imitation != "none":  # + λ·mean_i ‖μ(o_i) − a*_i‖²: the teacher's action in the learner's state
+            actor_loss = actor_loss + cfg.imitation_weight * ((mu - b.expert[rows]) ** 2).sum(-1).mean()
         self.actor_opt.zero_grad()
         actor_loss.backward(inputs=list(self.actor.parameters()))  # through μ only, not into Q's weights
         nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.grad_clip)

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from replicate.compare.evaluate import evaluate_policy
+from replicate.compare.planner import planner_teacher
 from replicate.compare.suite import SuiteCell, at_density, drift_heading, suite_cells, suite_event, suite_lake
 from replicate.core import artifacts
 from replicate.core.executor import map_jobs
@@ -35,7 +36,9 @@ def _train_seed(job: dict) -> dict:
     done = finished_general(out, general_identity(params, job["seed"]))
     if done is not None:
         return {**done, "skipped": True}
-    return train_recorded(params, job["seed"], out)
+    gains = json.loads(Path(job["gains"]).read_text()) if job.get("gains") else None
+    teacher = planner_teacher(params, gains) if params.general.learner.imitation != "none" else None
+    return train_recorded(params, job["seed"], out, teacher=teacher)
 
 
 def train_seeds(params_path: str, out: Path, seeds, gains_path: str | None, workers: int,
@@ -44,7 +47,7 @@ def train_seeds(params_path: str, out: Path, seeds, gains_path: str | None, work
     finished with identical settings is kept) and export each one's actor to ``policy.pt`` there with the
     baselines' gains of ``gains_path``. → (each seed's summary, flagged ``skipped`` when kept; the wall time)."""
     params = load_params(params_path)
-    jobs = [{"params": params_path, "seed": s, "out": str(seed_folder(out, s))} for s in seeds]
+    jobs = [{"params": params_path, "seed": s, "out": str(seed_folder(out, s)), "gains": gains_path} for s in seeds]
     t0 = time.perf_counter()
     runs = map_jobs(_train_seed, jobs, executor, workers)
     wall = time.perf_counter() - t0

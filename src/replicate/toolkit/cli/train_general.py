@@ -23,6 +23,10 @@ def add(sub, verb: dict, regions: str) -> None:
     tg.add_argument("--episodes", type=int, default=None, help="episodes (default: general.episodes)")
     tg.add_argument("--out", required=True, help="the run folder to write (actor.pt, curve.csv.gz, run.json)")
     tg.add_argument("--force", action="store_true", help="replace a finished run in --out")
+    tg.add_argument("--baseline-gains", default=None,
+                    help="the general baselines' tuned gains (`replicate tune general-baselines`), with which the "
+                         "planner steers when general.learner.imitation teaches with it (default: the hand-set "
+                         "evaluate.lloyd)")
     tg.set_defaults(func=run)
 
 
@@ -30,11 +34,14 @@ def add(sub, verb: dict, regions: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """``train-general``: one seed of the general policy into ``--out`` (no checkpoints: an interrupted run starts
     again; 3,000 episodes take about half an hour of one core)."""
+    from replicate.compare.planner import planner_teacher
     from replicate.core.outputs import locked, replacing
     from replicate.learn.general_train import train_recorded
     from replicate.learn.process import training_process
+    from replicate.toolkit.cli.export import read_baseline_gains
 
     params = load_params(args.params, overrides(args.set))
+    gains = read_baseline_gains(args.baseline_gains)
     check_seed(args.seed)
     config = params.general
     check_episodes(args.episodes)
@@ -52,7 +59,9 @@ def run(args: argparse.Namespace) -> int:
         args.held.enter_context(replacing(out))  # the old run stays until the new one is complete
     training_process()
     # recorded as the stages record a seed: train_general or train_yardstick keeps this run when its values match
-    summary = train_recorded(dataclasses.replace(params, general=config), args.seed, out, not args.no_progress)
+    teacher = planner_teacher(params, gains) if config.learner.imitation != "none" else None
+    summary = train_recorded(dataclasses.replace(params, general=config), args.seed, out, not args.no_progress,
+                             teacher)
     print(f"best validation coverage {summary['selected_validation_coverage']:.3f} at episode "
           f"{summary['selected_episode']}; wrote {out} (`replicate export {out}` makes its policy file)")
     return 0
