@@ -86,22 +86,26 @@ def waypoints(g: WaterGraph, p: Places, goal: np.ndarray, xy: np.ndarray, lookah
 def planner_teacher(params, gains: dict | None) -> Policy:
     """The planner as the general training's teacher (``general.learner.imitation``): steering with the tuned
     Lloyd gains of ``gains`` (``tuning.general_baselines``' result) where given, else the hand-set
-    ``evaluate.lloyd``, on the evaluation's water graph (``evaluate.geodesic``)."""
+    ``evaluate.lloyd``, on the evaluation's water graph (``evaluate.geodesic``), to the best layout of one search
+    start: it needs a layout for every training world and every fleet a loss leaves, ~6 s each with all five starts.
+    The first 704 episodes of a seed (one pass over the worlds) took 141.7 CPU-s with all five, 58.1 with one,
+    33.0 without a teacher (``replicate train-general --episodes 704``, on a busy machine)."""
     ev = params.evaluate
     lloyd = ev.lloyd if not gains else LloydConfig(**gains["lloyd_tuned"]["gains"],
                                                    converged_steps=ev.lloyd.converged_steps)
-    return clairvoyant_planner(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)
+    return clairvoyant_planner(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead, quick=True)
 
 
-def clairvoyant_planner(cfg: LloydConfig, spacing: float, lookahead: float) -> Policy:
+def clairvoyant_planner(cfg: LloydConfig, spacing: float, lookahead: float, quick: bool = False) -> Policy:
     """The planner (module docstring) steering with Lloyd's law at ``cfg``'s gains, on the water graph of
-    ``spacing`` metres (``evaluate.geodesic``)."""
+    ``spacing`` metres (``evaluate.geodesic``); ``quick``: to the best layout of one search start
+    (``best_layout``'s ``quick``)."""
     state: dict = {}
 
     def layout_for(env: CoverageEnv, m: int) -> Places:
         if m not in state["places"]:
             c = env.coverage
-            xy, _ = best_layout_once(env.region.polygon, m, c.radius, c.edges)
+            xy, _ = best_layout_once(env.region.polygon, m, c.radius, c.edges, quick)
             state["places"][m] = places(state["graph"], xy)
         return state["places"][m]
 
