@@ -11,7 +11,8 @@ import pytest
 
 from replicate.compare import baselines
 from replicate.compare.best_layout import best_coverage
-from replicate.compare.evaluate import general_baselines, rollout
+from replicate.compare.evaluate import rollout
+from replicate.compare.rivals import general_baselines
 from replicate.compare.suite import SuiteCell, at_density, drift_heading, suite_event, suite_lake
 from replicate.core.studies import StartsConfig
 from replicate.pipeline.report.general import general_checks

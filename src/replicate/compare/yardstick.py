@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from replicate.compare import stats
-from replicate.compare.evaluate import evaluate_policy, lloyd_name, read_general_policy
+from replicate.compare.evaluate import evaluate_policy, read_general_policy
+from replicate.compare.rivals import lloyd_name
 from replicate.compare.suite import at_density, suite_event
 from replicate.core.artifacts import CheckpointError
 from replicate.core.executor import map_jobs

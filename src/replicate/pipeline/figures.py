@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from replicate.compare.evaluate import BASELINES, general_episode, lloyd_name
+from replicate.compare.evaluate import BASELINES, general_episode
+from replicate.compare.rivals import lloyd_name
 from replicate.compare.suite import (
     SuiteCell,
     at_density,

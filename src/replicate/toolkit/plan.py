@@ -22,7 +22,8 @@ import shapely
 from pyproj import Transformer
 
 from replicate.compare.best_layout import best_layout_once
-from replicate.compare.evaluate import fleet_policy, general_baselines, read_general_policy, rollout
+from replicate.compare.evaluate import fleet_policy, read_general_policy, rollout
+from replicate.compare.rivals import general_baselines
 from replicate.core.params import Params
 from replicate.core.schema import ConfigError
 from replicate.core.sections import SensorsConfig

@@ -98,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
 
 def evaluate_policy_file(args: argparse.Namespace, params: Params) -> int:
     """``evaluate --policy``: a general policy on ``--region`` with its fleet, starts and events."""
-    from replicate.compare.evaluate import evaluate_policy, lloyd_name
+    from replicate.compare.evaluate import evaluate_policy
+    from replicate.compare.rivals import lloyd_name
 
     if args.run is not None or args.baseline is not None or args.config != "paper":
         raise ConfigError("--policy evaluates a general policy; give no run folder, --baseline or --config with it")
