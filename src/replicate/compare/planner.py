@@ -64,8 +64,8 @@ def assign(p: Places, start_points: np.ndarray) -> np.ndarray:
     return out
 
 
-def waypoints(g: WaterGraph, p: Places, goal: np.ndarray, xy: np.ndarray, lookahead: float) -> tuple[np.ndarray,
-                                                                                                     np.ndarray]:
+def waypoints(g: WaterGraph, p: Places, goal: np.ndarray, xy: np.ndarray,
+              lookahead: float) -> tuple[np.ndarray, np.ndarray]:
     """For buoys at xy [K, 2] bound for places ``goal`` [K]: (the point of each one's shortest path ``lookahead``
     metres ahead, or the place itself when nearer [K, 2]; the distance left to sail [K])."""
     here = g.tree.query(xy)[1]
