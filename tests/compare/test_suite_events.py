@@ -31,3 +31,23 @@ def test_every_event_is_sized_as_the_suite_says(params):
         np.testing.assert_allclose(east_of_middle[1, 0], [0.0, 0.0])  # the middle is still
     with pytest.raises(ValueError, match="water"):
         suite_event(su, "vortex", 9)
+
+
+def test_the_suite_reads_four_kinds_of_lakes_from_four_streams(params):
+    """The trained-on regions, the yardstick's design lakes, the test stream and the real lakes: disjoint, every
+    generated lake named by its recipe and built alone."""
+    from replicate.compare.suite import lake_kinds, suite_lake
+    from replicate.world.lakes import lake_name, test_stream, training, yardstick
+
+    kinds = lake_kinds(params)
+    by_kind = {k: {name for name, kind in kinds.items() if kind == k} for k in ("trained", "design", "test", "real")}
+    assert by_kind["trained"] == set(params.general.regions)
+    assert by_kind["design"] == {lake_name(s) for s in yardstick(params.yardstick.lakes)}
+    assert by_kind["test"] == {lake_name(s) for s in test_stream(params.general.suite.test_lakes)}
+    assert len(by_kind["design"]) == params.yardstick.lakes and not by_kind["design"] & by_kind["test"]
+    trained_lakes = {lake_name(s) for s in training(params.general.lakes, n_range=params.general.lake_fleet,
+                                                   ratio_range=params.general.lake_ratio)}
+    assert not trained_lakes & (by_kind["design"] | by_kind["test"])
+    name = sorted(by_kind["design"])[0]
+    region, drawn_for = suite_lake(params, name)
+    assert region.name == name and region.polygon.area > 0 and drawn_for > 0

@@ -313,6 +313,7 @@ def test_the_evaluation_suite_scores_every_cell(two_runs, tmp_path):
     raw = yaml.safe_load((ROOT / "params.yaml").read_text())
     raw["general"]["suite"].update(test_lakes=1, real_lakes=[], named_fleets=[5], lake_fleets=[6], starts=["random"],
                                    episodes=2)
+    raw["yardstick"]["lakes"] = 1  # one design lake
     raw["regions"]["bedok"]["path"] = str(ROOT / raw["regions"]["bedok"]["path"])
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
     result = evaluate_general(str(tmp_path / "params.yaml"), str(policies), str(tmp_path / "g.json"), 1)
@@ -320,10 +321,12 @@ def test_the_evaluation_suite_scores_every_cell(two_runs, tmp_path):
     cells = {(c["region"], c["n_agents"], c["event"]): c for c in result["cells"]}
     from replicate.core.params import load_params
 
-    assert len(cells) == len(suite_cells(load_params(tmp_path / "params.yaml"))) == 4 * len(EVENTS)  # 3 named, 1 new
+    # 3 named, 1 design and 1 test lake
+    assert len(cells) == len(suite_cells(load_params(tmp_path / "params.yaml"))) == 5 * len(EVENTS)
     assert cells[("square", 5, "lose")]["lose"] == 1 and cells[("bedok", 5, "current")]["lose"] == 0
     kinds = {c["region"]: c["kind"] for c in result["cells"]}
-    assert kinds["square"] == "trained" and kinds["bedok"] == "real" and sum(k == "test" for k in kinds.values()) == 1
+    assert kinds["square"] == "trained" and kinds["bedok"] == "real"
+    assert sum(k == "test" for k in kinds.values()) == sum(k == "design" for k in kinds.values()) == 1
     for c in result["cells"]:
         found = {k: b["coverage"]["mean"] for k, b in c["baselines"].items()}
         bound, best = found.pop("upper_bound"), found["best_layout"]

@@ -201,12 +201,13 @@ def test_the_general_policys_bars_are_counted_per_cell(params):
     assert verdicts["still water: ≥ 98% of lloyd_tuned"] == ("2 of 4", "not met")
     # 0.62 < 0.9 × 0.70
     assert verdicts["drift or vortex: ≥ 90% of its own still-water coverage"] == ("1 of 2", "not met")
+    cells.append(cell("lake-d", "none", 0.60, 0.70, best=0.72, kind="design"))  # a design lake below the bar
     for c in cells[1:]:
         c.setdefault("seeds", {k: {"coverage": c["coverage"], "max_outside_m": c["max_outside_m"]} for k in seeds})
     table = "\n".join(bar_table(params, cells))
-    # trained on: the square only (0 of 1); test: lake-a meets, lake-b does not; real: Bedok meets; verdict over the
-    # test and real lakes, 2 of 3
-    assert "| still water: ≥ 98% of lloyd_tuned | 0 of 1 | 1 of 2 | 1 of 1 | **not met** |" in table
+    # trained on: the square only (0 of 1); design: lake-d does not meet it, and is not in the verdict; test:
+    # lake-a meets, lake-b does not; real: Bedok meets; verdict over the test and real lakes, 2 of 3
+    assert "| still water: ≥ 98% of lloyd_tuned | 0 of 1 | 0 of 1 | 1 of 2 | 1 of 1 | **not met** |" in table
     assert "s1 mean 0.986, worst 0.857; s2 mean 0.986, worst 0.857." in table  # (1.1 + 0.6/0.7 + 1.0) / 3
     summary = {"runs": {"tuned/cr/square": {"robustness": {"corner": {"coverage": {"mean": 0.74, "lo": 0.73,
                                                                                    "hi": 0.75, "n": 10}}}}}}

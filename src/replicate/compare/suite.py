@@ -1,16 +1,17 @@
 """The general policy's evaluation suite: every lake × fleet × start × event it is read on.
 
-Its lakes are of three kinds, never pooled in one number (``LakeKind``):
+Its lakes are of four kinds, never pooled in one number (``LakeKind``):
 
 * **trained**: the named regions the policy trains on (``general.regions``: the square and the rectangle);
+* **design**: the yardstick's lakes (``lakes.yardstick``, ``yardstick.lakes`` of them), on which the training's
+  values were chosen (``replicate compare``): never trained on, but read by every choice, so not a test;
 * **test**: ``general.suite.test_lakes`` generated lakes of the test stream (``lakes.test_stream``), a seed stream
   that no choice of the training, the baselines or the report has read;
 * **real**: the other named regions (Bedok) and the lake files of ``general.suite.real_lakes`` (OpenStreetMap
   reservoirs), each drawn for the paper's 9 buoys.
 
 The named regions run the fleets of ``named_fleets``, the others those of ``lake_fleets``; a cell scales its lake to
-the fleet's density (``at_density``). The yardstick (``yardstick``) sizes its events as the suite does; its lakes,
-the design lakes on which the training's values are chosen, are a fourth stream that the suite never reads.
+the fleet's density (``at_density``). The yardstick (``yardstick``) sizes its events as the suite does.
 """
 
 from __future__ import annotations
@@ -27,12 +28,12 @@ from shapely import affinity
 from shapely.geometry import Polygon
 
 from replicate.world.currents import Current, lake_vortex
-from replicate.world.lakes import lake_name, test_stream
+from replicate.world.lakes import lake_name, test_stream, yardstick
 from replicate.world.regions import Region, make_region, region_from_file
 from replicate.world.scenario import named_lakes
 
-LakeKind = Literal["trained", "test", "real"]
-KINDS: tuple[LakeKind, ...] = ("trained", "test", "real")
+LakeKind = Literal["trained", "design", "test", "real"]
+KINDS: tuple[LakeKind, ...] = ("trained", "design", "test", "real")
 
 
 @dataclass(frozen=True)
@@ -48,11 +49,13 @@ class SuiteCell:
 
 
 def lake_kinds(params) -> dict[str, LakeKind]:
-    """{lake name: its kind} of the suite, in the suite's order: named regions, real lake files, test lakes."""
+    """{lake name: its kind} of the suite, in the suite's order: named regions, real lake files, design lakes, test
+    lakes."""
     named = {name: "trained" if name in params.general.regions else "real" for name in params.regions}
     files = {Path(path).stem: "real" for path in params.general.suite.real_lakes}
+    design = {lake_name(spec): "design" for spec in yardstick(params.yardstick.lakes)}
     tests = {lake_name(spec): "test" for spec in test_stream(params.general.suite.test_lakes)}
-    return named | files | tests
+    return named | files | design | tests
 
 
 def suite_lake(params, name: str) -> tuple[Region, int]:
@@ -62,7 +65,8 @@ def suite_lake(params, name: str) -> tuple[Region, int]:
     for path in params.general.suite.real_lakes:
         if Path(path).stem == name:
             return region_from_file(path, name, params.world.region_area), params.world.n_agents
-    spec = {lake_name(s): s for s in test_stream(params.general.suite.test_lakes)}[name]
+    generated = [*yardstick(params.yardstick.lakes), *test_stream(params.general.suite.test_lakes)]
+    spec = {lake_name(s): s for s in generated}[name]
     return named_lakes(params, [spec])[name]  # this lake's geometry alone
 
 

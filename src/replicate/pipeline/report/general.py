@@ -29,8 +29,11 @@ INFORMATION = {
                    "heuristic, not a bound)",
     "upper_bound": "min(1, N·A(Cov)/A(Reg)): no layout covers more",
 }
-KIND_TITLE = {"trained": "trained on (the training worlds)", "test": "test lakes (generated, a stream no choice read)",
+KIND_TITLE = {"trained": "trained on (the training worlds)",
+              "design": "design lakes (the yardstick's: never trained on, read by every choice)",
+              "test": "test lakes (generated, a stream no choice read)",
               "real": "real lakes (Bedok and OpenStreetMap reservoirs, never trained on)"}
+POOLED = ("design", "test")  # generated lakes: one row per fleet, start and event, the mean over the lakes
 
 
 def kind_of(params, c: dict) -> str:
@@ -105,11 +108,11 @@ def general_verdicts(cells: list[dict], t) -> list[tuple[str, str, str]]:
 
 def bar_table(params, cells: list[dict]) -> list[str]:
     """The bars of ``report.general``: cells meeting each with every seed, per lake kind; the verdict reads the
-    lakes never trained on (test and real) together."""
+    lakes that neither the training nor a choice read (test and real) together."""
     t = params.report.general
     kinds = {k: [c for c in cells if kind_of(params, c) == k] for k in KINDS}
     per_kind = {k: {bar: (ok, which) for bar, which, ok in general_checks(group, t)} for k, group in kinds.items()}
-    unseen = [c for c in cells if kind_of(params, c) != "trained"]
+    unseen = [c for c in cells if kind_of(params, c) in ("test", "real")]
     rows = ["| bar (`report.general`) | " + " | ".join(KIND_TITLE[k].split(" (")[0] for k in KINDS)
             + " | verdict (test and real lakes) |", "|---|" + "---|" * (len(KINDS) + 1)]
     for bar, _, verdict in general_verdicts(unseen, t):
@@ -175,9 +178,9 @@ def cell_rows(params, cells: list[dict], summary: dict) -> list[str]:
     return out
 
 
-def pooled_rows(cells: list[dict]) -> list[str]:
-    """The test lakes pooled per fleet, start and event: means over lakes (the deployed policy's range over
-    lakes), the seeds' interval over seeds of their mean over lakes, the worst lake's ratio to lloyd_tuned."""
+def pooled_rows(cells: list[dict], kind: str = "test") -> list[str]:
+    """Generated lakes of ``kind`` pooled per fleet, start and event: means over lakes (the deployed policy's range
+    over lakes), the seeds' interval over seeds of their mean over lakes, the worst lake's ratio to each yardstick."""
     groups: dict[tuple, list[dict]] = {}
     for c in cells:
         groups.setdefault((c["n_agents"], c["start"], c["event"]), []).append(c)
@@ -188,7 +191,7 @@ def pooled_rows(cells: list[dict]) -> list[str]:
         seeds = [float(np.mean([p[s] for p in per_seed])) for s in per_seed[0]]
         ratios = np.array([[share(float(np.mean(list(p.values()))), rivals_of(c)[YARDSTICKS.index(k)])
                             for k in READ_AGAINST] for p, c in zip(per_seed, group)])  # [lakes, READ_AGAINST]
-        out.append(row(f"{len(group)} test lakes (mean)", n, start, event,
+        out.append(row(f"{len(group)} {kind} lakes (mean)", n, start, event,
                        f"{np.mean(general):.3f} ({min(general):.3f}-{max(general):.3f})", seeds, "—",
                        [nanmean(col) for col in np.array([rivals_of(c) for c in group]).T],
                        ["—" if np.isnan(r).all() else f"{np.nanmean(r):.3f} (worst {np.nanmin(r):.3f})"
@@ -197,7 +200,7 @@ def pooled_rows(cells: list[dict]) -> list[str]:
 
 
 def general_tables(params, cells: list[dict], summary: dict) -> list[str]:
-    """One table per lake kind: every cell of the trained-on and the real lakes, the test lakes pooled."""
+    """One table per lake kind: every cell of the trained-on and the real lakes, the generated ones pooled."""
     head = ("| lake | N | start | event | general policy (deployed) | seeds: mean [95 % CI over seeds] | tuned CR | "
             "naive_tuned | decentralised Lloyd | lloyd_tuned | geodesic Lloyd | planner | best layout | upper bound | "
             "seeds / lloyd_tuned | seeds / planner | seeds / best layout |")
@@ -206,7 +209,7 @@ def general_tables(params, cells: list[dict], summary: dict) -> list[str]:
         group = [c for c in cells if kind_of(params, c) == kind]
         if group:
             lines += [f"**{KIND_TITLE[kind][0].upper()}{KIND_TITLE[kind][1:]}**", "", head, "|" + "---|" * 17,
-                      *(pooled_rows(group) if kind == "test" else cell_rows(params, group, summary)), ""]
+                      *(pooled_rows(group, kind) if kind in POOLED else cell_rows(params, group, summary)), ""]
     return lines
 
 
@@ -246,10 +249,11 @@ def general_section(params, general: dict, summary: dict | None = None) -> list[
                       "its turn drawn per cell)"}
     lines = ["## One policy for every lake", "",
              f"The general policy (`{general['policy']}`, one network trained on the training worlds of `general`, "
-             f"local sensors only, the compass symmetry `{params.general.learner.symmetry}`) on three kinds of "
+             f"local sensors only, the compass symmetry `{params.general.learner.symmetry}`) on four kinds of "
              f"lakes, never pooled: the regions it trains on ({', '.join(trained)}, N ∈ {list(su.named_fleets)} "
-             f"at the paper's density), {su.test_lakes} generated test lakes of a seed stream that no choice read "
-             f"(N ∈ {list(su.lake_fleets)}, each at its own density), and real lakes, zero-shot: "
+             f"at the paper's density), the yardstick's {params.yardstick.lakes} design lakes, on which the "
+             f"training's values were chosen, {su.test_lakes} generated test lakes of a seed stream that no choice "
+             f"read (both N ∈ {list(su.lake_fleets)}, each lake at its own density), and real lakes, zero-shot: "
              f"{', '.join(named_real) or 'no named region'} (N ∈ {list(su.named_fleets)}) and "
              f"{len(su.real_lakes)} lake files (N ∈ {list(su.lake_fleets)}). Starts in the corner patch or scattered; "
              f"{', '.join(said[e] for e in su.events)}; {su.episodes} episodes per cell from the evaluation seed, "
