@@ -86,3 +86,10 @@ def test_the_general_training_learns_from_the_planner(params, tmp_path):
     expert, live = memory.data["expert"][:memory.size], memory.data["live"][:memory.size]
     assert np.abs(expert).max() <= 1.0 and np.abs(expert[live]).max() > 0.5  # the planner steers hard
     assert not expert[~live].any()
+
+
+def test_a_long_action_keeps_its_direction():
+    """Scaled into the box along its direction, not clipped per component: (300, −100) becomes (1, −1/3)."""
+    from replicate.compare.planner import in_the_box
+
+    np.testing.assert_allclose(in_the_box(np.array([[300.0, -100.0], [0.5, -0.2]])), [[1.0, -1 / 3], [0.5, -0.2]])
