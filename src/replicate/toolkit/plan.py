@@ -1,11 +1,10 @@
 """A deployment plan (``replicate plan``): a lake file, N buoys of a sensing radius in metres and a top speed in
-m/s → where each buoy goes and when, for the general policy, tuned Lloyd (clairvoyant: every buoy, the whole lake),
-decentralised Lloyd (what the policy sees: the buoys heard, the water sensed) and the clairvoyant planner (the best
-layout, sailed to: ``compare.planner``) side by side, with the best layout found offline as the limit; everything
-said in SI (``world.units``).
+m/s → where each buoy goes and when, for the general policy, tuned Lloyd (clairvoyant: every buoy, the whole lake)
+and decentralised Lloyd (what the policy sees: the buoys heard, the water sensed) side by side, with the best
+layout found offline as the limit; everything said in SI (``world.units``).
 
 The lake keeps its real size: one simulation metre is ``radius_m / R`` metres, and one simulation second is as
-many seconds as make the simulated top speed ``speed_ms`` (the transform is exact, ``world.units``). All four
+many seconds as make the simulated top speed ``speed_ms`` (the transform is exact, ``world.units``). All three
 start from the same positions, drawn in a square of side R·(start patch / R) around the launch point (default: the
 paper's corner patch) and fly for the mission's duration (default: the horizon T of the lake's size, as
 ``evaluate --policy``), each step one control period. Coverage is SPEC §8's exact fraction of the lake, at every
@@ -103,10 +102,9 @@ def plan(path: Path, params: Params, mission: Mission, policy: Path) -> Plan:
 
 def plan_on(region: Region, params: Params, mission: Mission, policy: Path, starts: StartsConfig = CORNER,
             decentralised: bool = True) -> Plan:
-    """Fly ``mission`` on ``region`` (simulation metres at the mission's scale): the general policy, tuned Lloyd,
-    (``decentralised``) decentralised Lloyd and the clairvoyant planner (the best layout, each buoy sailed to its
-    place: ``compare.planner``) from the same ``starts`` (drawn with ``mission.seed``; buoys lost as
-    ``starts.lose`` says), and the best layout as the limit. ``cover`` and ``evaluate --policy`` write one
+    """Fly ``mission`` on ``region`` (simulation metres at the mission's scale): the general policy, tuned Lloyd
+    and (``decentralised``) decentralised Lloyd from the same ``starts`` (drawn with ``mission.seed``; buoys lost
+    as ``starts.lose`` says), and the best layout as the limit. ``cover`` and ``evaluate --policy`` write one
     episode of their own this way."""
     units = Units.of(params.world, params.coverage, mission.radius_m, mission.speed_ms)
     module, meta = read_general_policy(policy)
@@ -116,7 +114,7 @@ def plan_on(region: Region, params: Params, mission: Mission, policy: Path, star
     patch = None if mission.launch is None else launch_patch(region.polygon, launch_point(region, mission, units),
                                                              params.world.start_patch)
     rivals, _ = general_baselines(params, meta.get("baseline_gains"), geodesic=False, naive=False,
-                                  decentralised=decentralised, planner=True)
+                                  decentralised=decentralised)
     flight = Flight(params, region, mission, steps, current, patch, starts)
     tracks = (flight.fly("general policy", fleet_policy(module), sensors),
               *(flight.fly(name, rival, sensors if name == "decentralised_lloyd" else None)
