@@ -31,7 +31,7 @@ def test_a_plan_on_each_real_lake_stays_in_the_water_below_top_speed(replicate, 
     assert period == pytest.approx(25 / 0.5 * 2 * np.sqrt(2) * 0.1)  # 14.14 s: the similarity transform's
     for (_, _), group in points.groupby(["method", "buoy"]):
         assert np.allclose(np.diff(group.sort_values("step").time_s), period)
-    assert len(points) == 3 * 9 * (summary["steps"] + 1)  # the policy, tuned and decentralised Lloyd
+    assert len(points) == 4 * 9 * (summary["steps"] + 1)  # the policy, tuned and decentralised Lloyd, the planner
     for method, m in summary["methods"].items():
         assert 0 < m["seconds_to_90pct"] <= m["seconds_to_95pct"] <= summary["mission_s"]
         assert m["coverage"] <= summary["best_layout"]["coverage"] * (1 + 1e-6)  # the limit holds
@@ -53,7 +53,7 @@ def test_the_geojson_is_in_lon_lat_and_the_csv_has_both_coordinates(replicate, t
                           "--out", str(out))
     assert code == 0, err
     tracks = gpd.read_file(out / "tracks.geojson")
-    assert tracks.crs.to_epsg() == 4326 and len(tracks) == 3 * 5
+    assert tracks.crs.to_epsg() == 4326 and len(tracks) == 4 * 5  # the policy, two Lloyds, the planner
     lon, lat = tracks.geometry.get_coordinates().mean()
     assert abs(lon - launch[0]) < 0.1 and abs(lat - launch[1]) < 0.1
     table = pd.read_csv(out / "waypoints.csv")
@@ -107,7 +107,7 @@ def test_evaluate_keeps_a_lake_in_metres_and_states_its_units(replicate, tmp_pat
     assert result["current"][0] == pytest.approx(0.1 / 0.5 * 2 * np.sqrt(2))  # 20 % of top speed
     layers, episode = check_field_files(tmp_path / "e-episode", "episode", animation=False)  # its first episode
     assert episode["steps"] == result["steps"] and episode["current_ms"] == pytest.approx([0.1, 0.0])
-    assert episode["top_speed_ms"] == pytest.approx(0.5) and len(layers["layout"]) == 12 * 3
+    assert episode["top_speed_ms"] == pytest.approx(0.5) and len(layers["layout"]) == 12 * 4  # + the planner
     assert result["field_files"][0] == str(tmp_path / "e-episode" / "episode.gpkg")
     code, err = replicate("evaluate", "--policy", "src/replicate/defaults/general.pt", "--region", "square",
                           "--radius-m", "300", "--out", str(tmp_path / "f.json"))

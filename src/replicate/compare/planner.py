@@ -34,6 +34,7 @@ from replicate.world.env import CoverageEnv
 from replicate.world.geodesic import WaterGraph, distinct_nearest, water_graph
 
 UNREACHABLE = 1e9  # the cost of a place a buoy cannot sail to (another basin of the water graph)
+MAX_GRAPH_POINTS = 200_000  # the water graph's points at most (the suite's lakes hold a few thousand at 0.1 m)
 
 
 @dataclass(frozen=True)
@@ -104,25 +105,38 @@ def planner_teacher(params, gains: dict | None) -> Policy:
     return clairvoyant_planner(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead, quick=True)
 
 
-def clairvoyant_planner(cfg: LloydConfig, spacing: float, lookahead: float, quick: bool = False) -> Policy:
+def graph_spacing(water, spacing: float) -> float:
+    """The water graph's spacing: ``spacing``, coarser on a lake whose graph would hold more than
+    ``MAX_GRAPH_POINTS`` (a real lake at a 25 m radius is hundreds of radii across)."""
+    return max(spacing, float(np.sqrt(water.area / MAX_GRAPH_POINTS)))
+
+
+def clairvoyant_planner(cfg: LloydConfig, spacing: float, lookahead: float, quick: bool = False,
+                        near_fleet: bool = False) -> Policy:
     """The planner (module docstring) steering with Lloyd's law at ``cfg``'s gains, on the water graph of
-    ``spacing`` metres (``evaluate.geodesic``); ``quick``: to the best layout of one search start
-    (``best_layout``'s ``quick``)."""
+    ``spacing`` metres (``evaluate.geodesic``; ``graph_spacing``); ``quick``: to the best layout of one search
+    start (``best_layout``'s ``quick``); ``near_fleet``: to the best layout whose greedy placement breaks its ties
+    toward the fleet's mean position when it plans (a mission on a lake far larger than the fleet's reach, where
+    every layout of non-overlapping discs ties and the first one found may lie across the lake)."""
     state: dict = {}
 
     def layout_for(env: CoverageEnv, m: int) -> Places:
-        if m not in state["places"]:
+        key = (m, state.get("toward"))
+        if key not in state["places"]:
             c = env.coverage
-            xy, _ = best_layout_once(env.region.polygon, m, c.radius, c.edges, quick)
-            state["places"][m] = places(state["graph"], xy)
-        return state["places"][m]
+            xy, _ = best_layout_once(env.region.polygon, m, c.radius, c.edges, quick, state.get("toward"))
+            state["places"][key] = places(state["graph"], xy)
+        return state["places"][key]
 
     def policy(env: CoverageEnv) -> np.ndarray:
         if state.get("region") is not env.region:
-            state.update(region=env.region, graph=water_graph(env.region.polygon, spacing), places={})
+            graph = water_graph(env.region.polygon, graph_spacing(env.region.polygon, spacing))
+            state.update(region=env.region, graph=graph, places={})
         g = state["graph"]
         alive = np.ones(env.pos.shape[:2], bool) if env.alive is None else env.alive
         if env.t == 0 or state.get("alive") is None or not np.array_equal(state["alive"], alive):
+            if near_fleet:  # where the fleet in service is now
+                state["toward"] = tuple(np.round(env.pos[alive].mean(axis=0), 6).tolist())
             goal = np.full(alive.shape, -1)  # a new episode or a loss: every environment plans again
             for e, live in enumerate(alive):
                 p = layout_for(env, int(live.sum()))

@@ -114,7 +114,7 @@ def plan_on(region: Region, params: Params, mission: Mission, policy: Path, star
     patch = None if mission.launch is None else launch_patch(region.polygon, launch_point(region, mission, units),
                                                              params.world.start_patch)
     rivals, _ = general_baselines(params, meta.get("baseline_gains"), geodesic=False, naive=False,
-                                  decentralised=decentralised)
+                                  decentralised=decentralised, planner=True, near_fleet=True)
     flight = Flight(params, region, mission, steps, current, patch, starts)
     tracks = (flight.fly("general policy", fleet_policy(module), sensors),
               *(flight.fly(name, rival, sensors if name == "decentralised_lloyd" else None)
