@@ -1,10 +1,11 @@
 """A deployment plan (``replicate plan``): a lake file, N buoys of a sensing radius in metres and a top speed in
-m/s → where each buoy goes and when, for the general policy, tuned Lloyd (clairvoyant: every buoy, the whole lake)
-and decentralised Lloyd (what the policy sees: the buoys heard, the water sensed) side by side, with the best
-layout found offline as the limit; everything said in SI (``world.units``).
+m/s → where each buoy goes and when, for the general policy, tuned Lloyd (clairvoyant: every buoy, the whole lake),
+decentralised Lloyd (what the policy sees: the buoys heard, the water sensed) and the clairvoyant planner (the best
+layout, sailed to: ``compare.planner``) side by side, with the best layout found offline as the limit; everything
+said in SI (``world.units``).
 
 The lake keeps its real size: one simulation metre is ``radius_m / R`` metres, and one simulation second is as
-many seconds as make the simulated top speed ``speed_ms`` (the transform is exact, ``world.units``). All three
+many seconds as make the simulated top speed ``speed_ms`` (the transform is exact, ``world.units``). All four
 start from the same positions, drawn in a square of side R·(start patch / R) around the launch point (default: the
 paper's corner patch) and fly for the mission's duration (default: the horizon T of the lake's size, as
 ``evaluate --policy``), each step one control period. Coverage is SPEC §8's exact fraction of the lake, at every

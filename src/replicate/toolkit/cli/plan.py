@@ -1,6 +1,7 @@
 """``replicate plan``: a deployment plan for a lake file, N buoys of a sensing radius in metres and a top speed in
-m/s: where each buoy ends up and when coverage reaches 90 % / 95 %, for the general policy, tuned Lloyd and
-decentralised Lloyd side by side, with the best layout as the limit; GIS files of the lake, tracks and layouts."""
+m/s: where each buoy ends up and when coverage reaches 90 % / 95 %, for the general policy, tuned Lloyd,
+decentralised Lloyd and the clairvoyant planner side by side, with the best layout as the limit; GIS files of the
+lake, tracks and layouts."""
 
 from __future__ import annotations
 
