@@ -92,13 +92,16 @@ def in_the_box(action: np.ndarray) -> np.ndarray:
     return action / np.maximum(np.abs(action).max(axis=-1, keepdims=True), 1.0)
 
 
-def planner_teacher(params, gains: dict | None) -> Policy:
-    """The planner as the general training's teacher (``general.learner.imitation``): steering with the tuned
+def planner_teacher(params, gains: dict | None) -> Policy | None:
+    """The planner as the general training's teacher where ``general.learner.imitation`` asks for one (None
+    otherwise): steering with the tuned
     Lloyd gains of ``gains`` (``tuning.general_baselines``' result) where given, else the hand-set
     ``evaluate.lloyd``, on the evaluation's water graph (``evaluate.geodesic``), to the best layout of one search
     start: it needs a layout for every training world and every fleet a loss leaves, ~6 s each with all five starts.
     The first 704 episodes of a seed (one pass over the worlds) took 141.7 CPU-s with all five, 58.1 with one,
     33.0 without a teacher (``replicate train-general --episodes 704``, on a busy machine)."""
+    if params.general.learner.imitation == "none":
+        return None
     ev = params.evaluate
     lloyd = ev.lloyd if not gains else LloydConfig(**gains["lloyd_tuned"]["gains"],
                                                    converged_steps=ev.lloyd.converged_steps)
