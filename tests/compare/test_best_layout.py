@@ -118,3 +118,21 @@ def test_lloyds_layout_is_a_start_of_the_search(params):
     refined = covered_area(lake, local_search(lake, xy, 0.1, r, e, 1e-3), r, e) / lake.area
     best, coverage = best_layout(lake, 6, r, e)
     assert coverage >= refined - 1e-9 and shapely.intersects_xy(lake, best[:, 0], best[:, 1]).all()
+
+
+def test_on_a_large_lake_the_layout_gathers_toward_the_fleet(params):
+    """On a 20 × 20 m lake every full disc ties: greedy placement takes the first of them, or with ``toward`` the
+    nearest to that point, and the three buoys' layout stays within a few radii of it at the same coverage."""
+    from shapely.geometry import box
+
+    from replicate.compare.best_layout import greedy
+
+    r, e = params.coverage.radius, params.coverage.edges
+    lake = box(0, 0, 20, 20)
+    gx, gy = np.meshgrid(np.arange(0, 20.01, 0.25), np.arange(0, 20.01, 0.25))
+    grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    first = greedy(lake, grid, 3, r, e)
+    near = greedy(lake, grid, 3, r, e, toward=np.array([15.0, 12.0]))
+    assert np.linalg.norm(first - [15.0, 12.0], axis=1).min() > 10
+    assert np.linalg.norm(near - [15.0, 12.0], axis=1).max() < 4 * r
+    assert covered_area(lake, near, r, e) == pytest.approx(covered_area(lake, first, r, e))

@@ -76,10 +76,11 @@ def test_the_general_training_learns_from_the_planner(params, tmp_path):
 
     gc = tiny(params)
     gc = dataclasses.replace(gc, learner=dataclasses.replace(gc.learner, imitation="beside"))
+    assert planner_teacher(params, None) is None  # params.yaml imitates nothing: no teacher
     with pytest.raises(ValueError, match="teacher"):
         GeneralTrainer(params, 4, tmp_path / "none", progress=False, config=gc)
     trainer = GeneralTrainer(params, 4, tmp_path / "taught", progress=False, config=gc,
-                             teacher=planner_teacher(params, None))
+                             teacher=planner_teacher(dataclasses.replace(params, general=gc), None))
     summary = trainer.run()
     assert summary["status"] == "finished"
     memory = trainer.loop.memories[0]

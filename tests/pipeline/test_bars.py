@@ -25,7 +25,7 @@ from ..conftest import ROOT
 @pytest.mark.slow
 def test_random_actions_fail_every_bar(params):
     """Mae Kuang (arms: lloyd_tuned falls short of the best layout, so the narrow-lake bar applies) with 9 buoys
-    from the corner: still water, a loss at T/2 and the suite's drift, 8 episodes each."""
+    from the corner: still water, a loss at T/2 and the suite's drift and vortex, 8 episodes each."""
     gains = json.loads((ROOT / "metrics/tuning/general_baselines.json").read_text())
     rivals, _ = general_baselines(params, gains, geodesic=False, decentralised=False)
     su, n = params.general.suite, 9
@@ -34,7 +34,7 @@ def test_random_actions_fail_every_bar(params):
     cells = []
     for event in su.events:
         cell = SuiteCell("mae_kuang_reservoir", n, "corner", event, "real")
-        lose, current = suite_event(su, event, n, drift_heading(params.evaluate.seed, cell))
+        lose, current = suite_event(su, event, n, drift_heading(params.evaluate.seed, cell), region.polygon)
 
         def covered(policy, lose=lose, current=current) -> float:
             env, _ = general_evaluation_env(params, region, n, 8, None, current)

@@ -62,15 +62,20 @@ def near(xy: np.ndarray, centre: np.ndarray, reach: float) -> np.ndarray:
     return np.all(np.abs(xy - centre) <= reach, axis=1)
 
 
-def greedy(region: Polygon, grid: np.ndarray, n_agents: int, radius: float, edges: int) -> np.ndarray:
-    """Each buoy in turn on the grid point [G, 2] whose polygon adds the most water not yet covered → [N, 2].
-    Every candidate is clipped to the water once; after a placement only the candidates within reach of it are
-    scored again (the others' gains cannot change)."""
+def greedy(region: Polygon, grid: np.ndarray, n_agents: int, radius: float, edges: int,
+           toward: np.ndarray | None = None) -> np.ndarray:
+    """Each buoy in turn on the grid point [G, 2] whose polygon adds the most water not yet covered → [N, 2]; among
+    points that add as much, the first, or the nearest to ``toward`` [2] (on a lake far larger than the fleet's
+    reach every full disc ties, and the layout then gathers where the fleet is). Every candidate is clipped to the
+    water once; after a placement only the candidates within reach of it are scored again (the others' gains
+    cannot change)."""
     clipped = shapely.intersection(coverage_polygons(grid, radius, edges), region)
     score = shapely.area(clipped)
+    far = None if toward is None else np.linalg.norm(grid - toward, axis=1)
     xy, covered = [], None
     for _ in range(n_agents):
-        best = int(np.argmax(score >= score.max() - TIE))  # the first of the best: float noise breaks no tie
+        ties = score >= score.max() - TIE  # float noise breaks no tie
+        best = int(np.argmax(ties)) if far is None else int(np.flatnonzero(ties)[np.argmin(far[ties])])
         xy.append(grid[best])
         covered = clipped[best] if covered is None else shapely.union(covered, clipped[best])
         touched = near(grid, grid[best], 2 * radius)
@@ -123,11 +128,13 @@ def lloyd_layout(region: Polygon, xy: np.ndarray, iterations: int = LLOYD_ITERAT
 
 
 def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spacing: float | None = None,
-                tolerance: float = 1e-3, quick: bool = False) -> tuple[np.ndarray, float]:
+                tolerance: float = 1e-3, quick: bool = False,
+                toward: tuple[float, float] | None = None) -> tuple[np.ndarray, float]:
     """(positions [N, 2], coverage fraction) of the best layout found (module docstring): greedy placement and
     local search from the candidate grid at each of ``GRID_OFFSETS`` and from Lloyd's layout, the best of them;
     ``quick``: from the first grid's greedy layout alone (a fifth of the time: the planner as a teacher, which
-    needs a layout for every training world and fleet left after a loss). ``spacing`` of the grid defaults to a
+    needs a layout for every training world and fleet left after a loss); ``toward`` (x, y) breaks the greedy
+    placement's ties toward that point (``greedy``). ``spacing`` of the grid defaults to a
     tenth of the radius, coarser where that grid would hold more than ``MAX_CANDIDATES`` points (a lake hundreds of
     radii across: the local search still refines every position down to ``tolerance``)."""
     minx, miny, maxx, maxy = region.bounds
@@ -140,7 +147,7 @@ def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spaci
                              np.arange(miny + dy * spacing, maxy + spacing, spacing))
         grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
         grid = grid[shapely.intersects_xy(region, grid[:, 0], grid[:, 1])]  # in the water, shore included
-        starts.append(greedy(region, grid, n_agents, radius, edges))
+        starts.append(greedy(region, grid, n_agents, radius, edges, None if toward is None else np.asarray(toward)))
     if not quick:
         starts.append(lloyd_layout(region, starts[0]))
     best = (None, -1.0)
@@ -152,17 +159,17 @@ def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spaci
 
 
 @functools.lru_cache(maxsize=512)
-def _best_layout(region_wkb: bytes, n_agents: int, radius: float, edges: int,
-                 quick: bool) -> tuple[np.ndarray, float]:
-    return best_layout(shapely.from_wkb(region_wkb), n_agents, radius, edges, quick=quick)
+def _best_layout(region_wkb: bytes, n_agents: int, radius: float, edges: int, quick: bool,
+                 toward: tuple[float, float] | None) -> tuple[np.ndarray, float]:
+    return best_layout(shapely.from_wkb(region_wkb), n_agents, radius, edges, quick=quick, toward=toward)
 
 
-def best_layout_once(region: Polygon, n_agents: int, radius: float, edges: int,
-                     quick: bool = False) -> tuple[np.ndarray, float]:
-    """``best_layout`` at the default grid, computed once per region, fleet and ``quick`` in a process (an
-    evaluation asks for it under every start and event, and its episode's map again) → (a copy of the positions,
-    coverage)."""
-    xy, cov = _best_layout(region.wkb, n_agents, radius, edges, quick)
+def best_layout_once(region: Polygon, n_agents: int, radius: float, edges: int, quick: bool = False,
+                     toward: tuple[float, float] | None = None) -> tuple[np.ndarray, float]:
+    """``best_layout`` at the default grid, computed once per region, fleet, ``quick`` and ``toward`` in a process
+    (an evaluation asks for it under every start and event, and its episode's map again) → (a copy of the
+    positions, coverage)."""
+    xy, cov = _best_layout(region.wkb, n_agents, radius, edges, quick, toward)
     return xy.copy(), cov
 
 

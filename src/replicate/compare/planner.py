@@ -34,6 +34,7 @@ from replicate.world.env import CoverageEnv
 from replicate.world.geodesic import WaterGraph, distinct_nearest, water_graph
 
 UNREACHABLE = 1e9  # the cost of a place a buoy cannot sail to (another basin of the water graph)
+MAX_GRAPH_POINTS = 200_000  # the water graph's points at most (the suite's lakes hold a few thousand at 0.1 m)
 
 
 @dataclass(frozen=True)
@@ -91,38 +92,54 @@ def in_the_box(action: np.ndarray) -> np.ndarray:
     return action / np.maximum(np.abs(action).max(axis=-1, keepdims=True), 1.0)
 
 
-def planner_teacher(params, gains: dict | None) -> Policy:
-    """The planner as the general training's teacher (``general.learner.imitation``): steering with the tuned
+def planner_teacher(params, gains: dict | None) -> Policy | None:
+    """The planner as the general training's teacher where ``general.learner.imitation`` asks for one (None
+    otherwise): steering with the tuned
     Lloyd gains of ``gains`` (``tuning.general_baselines``' result) where given, else the hand-set
     ``evaluate.lloyd``, on the evaluation's water graph (``evaluate.geodesic``), to the best layout of one search
     start: it needs a layout for every training world and every fleet a loss leaves, ~6 s each with all five starts.
     The first 704 episodes of a seed (one pass over the worlds) took 141.7 CPU-s with all five, 58.1 with one,
     33.0 without a teacher (``replicate train-general --episodes 704``, on a busy machine)."""
+    if params.general.learner.imitation == "none":
+        return None
     ev = params.evaluate
     lloyd = ev.lloyd if not gains else LloydConfig(**gains["lloyd_tuned"]["gains"],
                                                    converged_steps=ev.lloyd.converged_steps)
     return clairvoyant_planner(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead, quick=True)
 
 
-def clairvoyant_planner(cfg: LloydConfig, spacing: float, lookahead: float, quick: bool = False) -> Policy:
+def graph_spacing(water, spacing: float) -> float:
+    """The water graph's spacing: ``spacing``, coarser on a lake whose graph would hold more than
+    ``MAX_GRAPH_POINTS`` (a real lake at a 25 m radius is hundreds of radii across)."""
+    return max(spacing, float(np.sqrt(water.area / MAX_GRAPH_POINTS)))
+
+
+def clairvoyant_planner(cfg: LloydConfig, spacing: float, lookahead: float, quick: bool = False,
+                        near_fleet: bool = False) -> Policy:
     """The planner (module docstring) steering with Lloyd's law at ``cfg``'s gains, on the water graph of
-    ``spacing`` metres (``evaluate.geodesic``); ``quick``: to the best layout of one search start
-    (``best_layout``'s ``quick``)."""
+    ``spacing`` metres (``evaluate.geodesic``; ``graph_spacing``); ``quick``: to the best layout of one search
+    start (``best_layout``'s ``quick``); ``near_fleet``: to the best layout whose greedy placement breaks its ties
+    toward the fleet's mean position when it plans (a mission on a lake far larger than the fleet's reach, where
+    every layout of non-overlapping discs ties and the first one found may lie across the lake)."""
     state: dict = {}
 
     def layout_for(env: CoverageEnv, m: int) -> Places:
-        if m not in state["places"]:
+        key = (m, state.get("toward"))
+        if key not in state["places"]:
             c = env.coverage
-            xy, _ = best_layout_once(env.region.polygon, m, c.radius, c.edges, quick)
-            state["places"][m] = places(state["graph"], xy)
-        return state["places"][m]
+            xy, _ = best_layout_once(env.region.polygon, m, c.radius, c.edges, quick, state.get("toward"))
+            state["places"][key] = places(state["graph"], xy)
+        return state["places"][key]
 
     def policy(env: CoverageEnv) -> np.ndarray:
         if state.get("region") is not env.region:
-            state.update(region=env.region, graph=water_graph(env.region.polygon, spacing), places={})
+            graph = water_graph(env.region.polygon, graph_spacing(env.region.polygon, spacing))
+            state.update(region=env.region, graph=graph, places={})
         g = state["graph"]
         alive = np.ones(env.pos.shape[:2], bool) if env.alive is None else env.alive
         if env.t == 0 or state.get("alive") is None or not np.array_equal(state["alive"], alive):
+            if near_fleet:  # where the fleet in service is now
+                state["toward"] = tuple(np.round(env.pos[alive].mean(axis=0), 6).tolist())
             goal = np.full(alive.shape, -1)  # a new episode or a loss: every environment plans again
             for e, live in enumerate(alive):
                 p = layout_for(env, int(live.sum()))

@@ -13,7 +13,8 @@ from replicate.world.regions import Region
 
 
 def general_baselines(params: Params, gains: dict | None, geodesic: bool = True, naive: bool = True,
-                      decentralised: bool = False, planner: bool = False) -> tuple[dict[str, baselines.Policy], str]:
+                      decentralised: bool = False, planner: bool = False,
+                      near_fleet: bool = False) -> tuple[dict[str, baselines.Policy], str]:
     """The general policy's comparisons → ({name: policy}, how their gains were set). With ``gains`` (the study of
     ``tuning.general_baselines``, carried in the policy's metadata): ``naive_tuned``, ``lloyd_tuned`` and
     geodesic Lloyd with its own tuned gains (Lloyd's where the study has none), each tuned once on the policy's
@@ -23,7 +24,7 @@ def general_baselines(params: Params, gains: dict | None, geodesic: bool = True,
     ``naive`` False naive swarming; ``decentralised`` True adds decentralised Lloyd with its own tuned gains
     (likewise; ``compare.decentralised``: the buoys heard and the water sensed, on the geodesic
     raster); ``planner`` True adds the clairvoyant planner (``compare.planner``: the best layout, sailed to) steering
-    with Lloyd's gains."""
+    with Lloyd's gains, its layout gathered near the fleet with ``near_fleet`` (a mission on a large lake)."""
     ev = params.evaluate
     if gains:
         naive_gains, lloyd = NaiveConfig(**gains["naive_tuned"]["gains"]), LloydConfig(
@@ -45,7 +46,8 @@ def general_baselines(params: Params, gains: dict | None, geodesic: bool = True,
     if decentralised:
         rivals["decentralised_lloyd"] = decentralised_lloyd(own("decentralised_tuned"), ev.geodesic.spacing)
     if planner:
-        rivals["planner"] = clairvoyant_planner(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead)
+        rivals["planner"] = clairvoyant_planner(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead,
+                                                near_fleet=near_fleet)
     return rivals, how
 
 

@@ -37,8 +37,7 @@ def _train_seed(job: dict) -> dict:
     if done is not None:
         return {**done, "skipped": True}
     gains = json.loads(Path(job["gains"]).read_text()) if job.get("gains") else None
-    teacher = planner_teacher(params, gains) if params.general.learner.imitation != "none" else None
-    return train_recorded(params, job["seed"], out, teacher=teacher)
+    return train_recorded(params, job["seed"], out, teacher=planner_teacher(params, gains))
 
 
 def train_seeds(params_path: str, out: Path, seeds, gains_path: str | None, workers: int,

@@ -103,10 +103,9 @@ def plan(path: Path, params: Params, mission: Mission, policy: Path) -> Plan:
 
 def plan_on(region: Region, params: Params, mission: Mission, policy: Path, starts: StartsConfig = CORNER,
             decentralised: bool = True) -> Plan:
-    """Fly ``mission`` on ``region`` (simulation metres at the mission's scale): the general policy, tuned Lloyd,
-    (``decentralised``) decentralised Lloyd and the clairvoyant planner (the best layout, each buoy sailed to its
-    place: ``compare.planner``) from the same ``starts`` (drawn with ``mission.seed``; buoys lost as
-    ``starts.lose`` says), and the best layout as the limit. ``cover`` and ``evaluate --policy`` write one
+    """Fly ``mission`` on ``region`` (simulation metres at the mission's scale): the general policy, tuned Lloyd
+    and (``decentralised``) decentralised Lloyd from the same ``starts`` (drawn with ``mission.seed``; buoys lost
+    as ``starts.lose`` says), and the best layout as the limit. ``cover`` and ``evaluate --policy`` write one
     episode of their own this way."""
     units = Units.of(params.world, params.coverage, mission.radius_m, mission.speed_ms)
     module, meta = read_general_policy(policy)
@@ -116,7 +115,7 @@ def plan_on(region: Region, params: Params, mission: Mission, policy: Path, star
     patch = None if mission.launch is None else launch_patch(region.polygon, launch_point(region, mission, units),
                                                              params.world.start_patch)
     rivals, _ = general_baselines(params, meta.get("baseline_gains"), geodesic=False, naive=False,
-                                  decentralised=decentralised, planner=True)
+                                  decentralised=decentralised, planner=True, near_fleet=True)
     flight = Flight(params, region, mission, steps, current, patch, starts)
     tracks = (flight.fly("general policy", fleet_policy(module), sensors),
               *(flight.fly(name, rival, sensors if name == "decentralised_lloyd" else None)

@@ -59,9 +59,8 @@ def run(args: argparse.Namespace) -> int:
         args.held.enter_context(replacing(out))  # the old run stays until the new one is complete
     training_process()
     # recorded as the stages record a seed: train_general or train_yardstick keeps this run when its values match
-    teacher = planner_teacher(params, gains) if config.learner.imitation != "none" else None
-    summary = train_recorded(dataclasses.replace(params, general=config), args.seed, out, not args.no_progress,
-                             teacher)
+    params = dataclasses.replace(params, general=config)
+    summary = train_recorded(params, args.seed, out, not args.no_progress, planner_teacher(params, gains))
     print(f"best validation coverage {summary['selected_validation_coverage']:.3f} at episode "
           f"{summary['selected_episode']}; wrote {out} (`replicate export {out}` makes its policy file)")
     return 0
