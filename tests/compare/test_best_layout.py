@@ -136,3 +136,24 @@ def test_on_a_large_lake_the_layout_gathers_toward_the_fleet(params):
     assert np.linalg.norm(first - [15.0, 12.0], axis=1).min() > 10
     assert np.linalg.norm(near - [15.0, 12.0], axis=1).max() < 4 * r
     assert covered_area(lake, near, r, e) == pytest.approx(covered_area(lake, first, r, e))
+
+
+def test_a_policys_final_layout_is_a_start_of_the_search(params, monkeypatch):
+    """``best_coverage_from``: the search from a policy's final layout (a point on land first moved to the nearest
+    water) is kept where it beats the best layout, and never lowers it."""
+    from shapely.geometry import box
+
+    from replicate.compare import best_layout as bl
+
+    r, e = params.coverage.radius, params.coverage.edges
+    lake = box(0, 0, 3, 3)
+    start = np.array([[0.5, 0.5], [1.5, 0.5], [2.5, 0.5], [0.5, 1.5], [1.5, 1.5], [2.5, 1.5], [0.5, 2.5],
+                      [1.5, 2.5], [3.4, 2.5]])  # the last on land, 0.4 m east of the shore
+    best, from_policy = bl.best_coverage_from(lake, 9, r, e, start)
+    assert best == pytest.approx(bl.best_coverage(lake, 9, r, e)) and best >= bl.best_coverage(lake, 9, r, e)
+    monkeypatch.setattr(bl, "best_coverage", lambda *args: 0.1)  # a search that found little
+    found, from_policy = bl.best_coverage_from(lake, 9, r, e, start)
+    moved = start.copy()
+    moved[-1] = [3.0, 2.5]
+    refined = bl.local_search(lake, moved, bl.grid_spacing(lake, r), r, e, 1e-3)
+    assert from_policy and found == pytest.approx(covered_area(lake, refined, r, e) / lake.area) and found > 0.5

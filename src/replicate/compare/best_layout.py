@@ -6,7 +6,8 @@ buoy at a time to the best of eight points around it in the water, shrinking the
 the step is below ``tolerance``; the best of five such searches is kept: four from greedy layouts on shifted
 grids, one from Lloyd's layout (Voronoi centroids iterated from the first greedy layout: on a lake where the
 greedy layouts end in one local optimum, Lloyd's ends in another, and on the suite's lakes it was at times the
-better one). Every place is in the
+better one). An evaluation adds a sixth start, the best final layout its policies reached (``best_coverage_from``): a
+layout the fleet found may lie in a basin none of the five searches enters. Every place is in the
 water (the region, shore included): a buoy behind the shore wall cannot sail onto a spit of land between two arms,
 so a layout with a buoy there is not one a fleet could take. Every score is exact:
 A(∪Cov ∩ Reg) by shapely, vectorised over the candidates, with only the candidates, neighbours and water within
@@ -127,6 +128,13 @@ def lloyd_layout(region: Polygon, xy: np.ndarray, iterations: int = LLOYD_ITERAT
     return xy
 
 
+def grid_spacing(region: Polygon, radius: float) -> float:
+    """The candidate grid's default spacing: a tenth of the radius, coarser where that grid would hold more than
+    ``MAX_CANDIDATES`` points."""
+    minx, miny, maxx, maxy = region.bounds
+    return max(radius / 10, np.sqrt((maxx - minx + 2 * radius) * (maxy - miny + 2 * radius) / MAX_CANDIDATES))
+
+
 def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spacing: float | None = None,
                 tolerance: float = 1e-3, quick: bool = False,
                 toward: tuple[float, float] | None = None) -> tuple[np.ndarray, float]:
@@ -138,8 +146,7 @@ def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spaci
     tenth of the radius, coarser where that grid would hold more than ``MAX_CANDIDATES`` points (a lake hundreds of
     radii across: the local search still refines every position down to ``tolerance``)."""
     minx, miny, maxx, maxy = region.bounds
-    if spacing is None:
-        spacing = max(radius / 10, np.sqrt((maxx - minx + 2 * radius) * (maxy - miny + 2 * radius) / MAX_CANDIDATES))
+    spacing = grid_spacing(region, radius) if spacing is None else spacing
     shapely.prepare(region)
     starts = []
     for dx, dy in GRID_OFFSETS[:1] if quick else GRID_OFFSETS:
@@ -176,3 +183,18 @@ def best_layout_once(region: Polygon, n_agents: int, radius: float, edges: int, 
 def best_coverage(region: Polygon, n_agents: int, radius: float, edges: int) -> float:
     """The best layout's coverage fraction (``best_layout_once``)."""
     return best_layout_once(region, n_agents, radius, edges)[1]
+
+
+def best_coverage_from(region: Polygon, n_agents: int, radius: float, edges: int, start: np.ndarray,
+                       tolerance: float = 1e-3) -> tuple[float, bool]:
+    """The better of the best layout (``best_coverage``) and the local search from ``start`` [N, 2] (the best final
+    layout a policy reached; its points outside the water first moved to the nearest water) → (coverage fraction,
+    whether ``start`` gave it)."""
+    best = best_coverage(region, n_agents, radius, edges)
+    start = np.asarray(start, dtype=float).copy()
+    outside = ~shapely.intersects_xy(region, start[:, 0], start[:, 1])
+    if outside.any():
+        start[outside] = nearest_in(region, start[outside])
+    xy = local_search(region, start, grid_spacing(region, radius), radius, edges, tolerance)
+    found = covered_area(region, xy, radius, edges) / region.area
+    return (found, True) if found > best + TIE else (best, False)

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from replicate.compare import baselines, metrics
-from replicate.compare.best_layout import best_coverage
+from replicate.compare.best_layout import best_coverage_from
 from replicate.compare.rivals import general_baselines, limits, lloyd_name, rivals_and_limit
 from replicate.compare.stats import mean_interval
 from replicate.core import artifacts
@@ -238,7 +238,8 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
     wall, on its local sensors, ``evaluate.episodes`` episodes from the evaluation seed at ``start``, losing
     ``lose`` buoys half-way, in ``current`` (a ``Current``, or a uniform flow in m/s). Beside it, under the same
     physics, starts and events, the baselines of ``general_baselines`` (gains from the policy's metadata) and the
-    best layout of the buoys left in service (``best_layout``: no physics, the limit). → coverage (mean, lo, hi, n
+    best layout of the buoys left in service (``best_layout``: no physics, the limit; searched from the policies'
+    best final layout too, ``best_coverage_from``). → coverage (mean, lo, hi, n
     over episodes), the
     baselines', ``ratio_to_lloyd``, ``ratio_to_best`` and ``max_outside_m``: the largest distance of any buoy
     outside the water at any step of any episode. ``seeds`` ({label: policy file}, e.g. every trained seed of
@@ -263,10 +264,18 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
         return mean_interval(coverage.coverage_fraction(region.polygon, live, params.coverage.radius,
                                                        params.coverage.edges))
 
+    reached: list[tuple[float, np.ndarray]] = []  # (coverage, layout [N_live, 2]) of each policy's best episode
+
     def learned(module, meta) -> dict:
         positions, live = episodes(fleet_policy(module), SensorsConfig(**meta["sensor_config"]))
-        return {"coverage": covered(live),
+        per_episode = coverage.coverage_fraction(region.polygon, live, params.coverage.radius, params.coverage.edges)
+        reached.append((float(per_episode.max()), live[int(np.argmax(per_episode))]))
+        return {"coverage": mean_interval(per_episode),
                 "max_outside_m": float(distance_outside(region.polygon, positions).max()) * region.scale}
+
+    def limit() -> tuple[float, bool]:  # the best layout, searched from the policies' best final layout too
+        return best_coverage_from(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges,
+                                  max(reached, key=lambda r: r[0])[1])
 
     rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic, naive, decentralised, planner)
     lloyd_key = lloyd_name(rivals)
@@ -279,13 +288,12 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
         for label, policy in others.items():
             phase(f"seed {label}")
             out.setdefault("seeds", {})[label] = learned(*policy)
-        limit = (lambda: best_coverage(region.polygon, n_agents - lose, params.coverage.radius,
-                                       params.coverage.edges)) if best_layout else None
-        out["baselines"], best = rivals_and_limit(rivals, lambda policy: covered(episodes(policy, None)[1]), limit,
-                                                  {lloyd_key: aside} if aside else {}, phase)
+        out["baselines"], (best, from_policy) = rivals_and_limit(
+            rivals, lambda policy: covered(episodes(policy, None)[1]), limit if best_layout else None,
+            {lloyd_key: aside} if aside else {}, phase)
         for name in rivals:
             out["baselines"][name]["gains"] = how
-        out["baselines"] |= limits(region, params, n_agents - lose, best if best_layout else None)
+        out["baselines"] |= limits(region, params, n_agents - lose, best if best_layout else None, from_policy)
     mine, lloyd = out["coverage"]["mean"], out["baselines"][lloyd_key]["coverage"]["mean"]
     return out | {"ratio_to_lloyd": mine / lloyd if lloyd > 0 else None,
                   "ratio_to_best": mine / best if best > 0 else None}

@@ -57,19 +57,22 @@ def lloyd_name(rivals: dict) -> str:
     return "lloyd_tuned" if "lloyd_tuned" in rivals else "lloyd"
 
 
-def limits(region: Region, params: Params, buoys: int, best: float | None) -> dict:
-    """The best layout's coverage (``best``, when searched) and the upper bound min(1, N·A(Cov)/A(Reg)) of ``buoys``
-    in service, as baselines: no layout covers more than the bound."""
+def limits(region: Region, params: Params, buoys: int, best: float | None, from_policy: bool = False) -> dict:
+    """The best layout's coverage (``best``, when searched; ``from_policy``: the search from a policy's final layout
+    found it) and the upper bound min(1, N·A(Cov)/A(Reg)) of ``buoys`` in service, as baselines: no layout covers
+    more than the bound."""
     bound = coverage.coverage_ceiling(region.polygon.area, buoys, params.coverage.radius, params.coverage.edges)
     out = {"upper_bound": {"coverage": {"mean": bound}, "buoys": buoys}}
-    return out if best is None else {"best_layout": {"coverage": {"mean": best}, "buoys": buoys}} | out
+    layout = {"coverage": {"mean": best}, "buoys": buoys, "from_policy": from_policy}
+    return out if best is None else {"best_layout": layout} | out
 
 
-def rivals_and_limit(rivals: dict, covered, limit, aside: dict, phase) -> tuple[dict, float]:
+def rivals_and_limit(rivals: dict, covered, limit, aside: dict, phase) -> tuple[dict, tuple[float, bool]]:
     """Each rival's coverage (``covered(policy)``, or the result of its ``aside`` run in a second process) and
-    the best layout's (``limit()``, 0 without one) → ({name: {"coverage"}}, best). With a rival aside the best
-    layout is searched first, while it runs."""
-    best = 0.0
+    the best layout's (``limit()`` → (coverage, whether a policy's layout gave it); (0, False) without one) →
+    ({name: {"coverage"}}, (best, from_policy)). With a rival aside the best layout is searched first, while it
+    runs."""
+    best = (0.0, False)
     if limit is not None and aside:
         phase("the best layout")
         best = limit()
