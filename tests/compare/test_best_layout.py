@@ -157,3 +157,24 @@ def test_a_policys_final_layout_is_a_start_of_the_search(params, monkeypatch):
     moved[-1] = [3.0, 2.5]
     refined = bl.local_search(lake, moved, bl.grid_spacing(lake, r), r, e, 1e-3)
     assert from_policy and found == pytest.approx(covered_area(lake, refined, r, e) / lake.area) and found > 0.5
+
+
+def test_one_buoys_water_tightens_the_bound_only_on_the_narrowest_rectangle(params):
+    """Why the upper bound min(1, N·A(Cov)/A(Reg)) is not tightened by a strip bound (N times the most water one
+    coverage polygon can hold, max_x A(Cov(x) ∩ Reg)): that is below A(Cov) only where no whole polygon fits in the
+    lake, and among the suite's lakes and fleets that is the rectangle at N = 5 alone (N = 9 fits one exactly);
+    elsewhere the bound's slack is the overlap the best layout cannot avoid at the shore, which no bound on one
+    buoy's water sees."""
+    import shapely
+
+    from replicate.compare.suite import at_density, lake_kinds, suite_lake
+
+    su, r = params.general.suite, params.coverage.radius
+    narrow = []
+    for name in lake_kinds(params):
+        region, drawn_for = suite_lake(params, name)
+        for n in su.named_fleets if name in params.regions else su.lake_fleets:
+            inscribed = shapely.maximum_inscribed_circle(at_density(region, drawn_for, n).polygon, r / 1000)
+            if shapely.length(inscribed) < r * (1 - 1e-6):
+                narrow.append((name, n))
+    assert narrow == [("rectangle", 5)]
