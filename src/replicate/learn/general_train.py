@@ -173,8 +173,7 @@ class GeneralTrainer:
         artifacts.write_csv(self.out / "curve.csv.gz", CURVE_COLUMNS, self.rows)
         summary = {"status": "finished", "seed": self.seed, "general": to_dict(gc),
                    "worlds": [{"region": w.region.name, "n_agents": w.n_agents} for w in self.worlds],
-                   "selected_episode": best["episodes"], "selected_validation_coverage": best["score"],
-                   "wall_seconds": round(wall, 2), "cpu_seconds": round(cpu, 2),
+                   **self.loop.selection(0), "wall_seconds": round(wall, 2), "cpu_seconds": round(cpu, 2),
                    "arithmetic": general_fingerprint()}  # which numbers trained it (``fingerprint``)
         artifacts.write_json(self.out / "run.json", summary)
         return summary
