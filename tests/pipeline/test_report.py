@@ -249,6 +249,10 @@ def test_claims_one_and_two_say_their_other_reading(params):
     final = dataclasses.replace(params.report, convergence_band="final", spread="all")
     one, two = claims(s, "tuned", regions, final)[:2]
     assert one.verdict == "partly" and "over every agent" in two.rule
+    sw["nearest_neighbour_inside_per_seed"] = [None, None, 0.1]  # two of SW's seeds: never two agents inside
+    two = claims(s, "tuned", regions, params.report)[1]
+    assert "rectangle: not measurable (SW: fewer than two agents inside" in two.evidence
+    assert "square: Δ CR − SW" in two.evidence  # judged on the square alone
 
 
 def test_a_lake_and_fleet_has_one_best_layout_whatever_the_cell():

@@ -96,10 +96,20 @@ def spread_verdict(j: Judge, spread: str) -> tuple[str, list[str]]:
     for region in ("rectangle", "square"):
         cr, sw = j.get("cr", region), j.get("sw", region)
         if cr and sw and key in cr and key in sw:
-            ok, d = beats(cr[key], sw[key], j.r.spread_margin, j.boot)
+            measured = {m: [v for v in run[key] if v is not None] for m, run in (("CR", cr), ("SW", sw))}
+            short = [m for m, v in measured.items() if len(v) < 2]
+            if short:  # the agents inside: fewer than two in every episode of a seed measure no spread there
+                ev.append(f"{region}: not measurable ({' and '.join(short)}: fewer than two agents inside in "
+                          "every episode of all but at most one seed)")
+                continue
+            ok, d = beats(measured["CR"], measured["SW"], j.r.spread_margin, j.boot)
             holds.append(ok)
             inside = "" if "fraction_inside" not in cr else (
                 f" (fully inside: CR {cr['fraction_inside']['mean']:.3f}, SW {sw['fraction_inside']['mean']:.3f})")
+            if spread == "inside" and "nearest_neighbour_inside_episodes" in sw:
+                inside += (f"; episodes measured (two or more agents inside), every seed's: CR "
+                           f"{sum(cr['nearest_neighbour_inside_episodes'])}, SW "
+                           f"{sum(sw['nearest_neighbour_inside_episodes'])}")
             ev.append(f"{region}: Δ CR − SW {fmt_delta(d)} m{inside}")
     return (over_cells(holds, j.r.partly) if holds else ""), ev
 
