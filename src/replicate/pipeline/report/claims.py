@@ -81,7 +81,8 @@ def claim_convergence(j: Judge) -> list[Claim]:
         "reproduced, one → partly",
         verdict,
         f"convergence episode per seed (None = not converged): CR {cr_ep}, SW {sw_ep}. With the band "
-        f"{BAND[other]} ({'SPEC §8' if other == 'final' else 'the other reading'}): {was}, CR {cr_was}, SW {sw_was}; "
+        f"{BAND[other]} ({'SPEC §8, the rule before these numbers were read' if other == 'final' else 'the other reading'}): "
+        f"{was}, CR {cr_was}, SW {sw_was}; "
         "a band of the final return's size is near 0 for SW, whose return ends near 0 after starting at −180,064, "
         "and wide for CR, whose constant inside bonus dominates its return")]
 
@@ -125,7 +126,9 @@ def claim_spread(j: Judge) -> list[Claim]:
         "2. CR-MARL spreads the agents more than SW-MARL (rectangle and square)",
         f"per region, the {r.level:.0%} interval of Δ mean nearest-neighbour distance {SPREAD[r.spread][1]} (CR − "
         f"SW, over seeds; `report.spread`) lies above {r.spread_margin:.3f} m; {rule_over_cells(r)}",
-        verdict, "; ".join(ev) + (f". {SPREAD[other][1].capitalize()}: {was}, " + "; ".join(ev_was) +
+        verdict, "; ".join(ev) + (f". {SPREAD[other][1].capitalize()}"
+                                  + (" (the rule before these numbers were read)" if other == "all" else "")
+                                  + f": {was}, " + "; ".join(ev_was) +
                                   "; agents that leave the region lengthen the distance over every agent without "
                                   "spreading over the region" if ev_was else ""))]
 
