@@ -243,7 +243,8 @@ def test_claims_one_and_two_say_their_other_reading(params):
     sw["convergence_by_tolerance"]["range"] = {f: [None, None, None] for f in ("1.0", "0.5", "2.0")}
     regions = ["square", "rectangle", "bedok"]
     one, two = claims(s, "tuned", regions, params.report)[:2]
-    assert one.verdict == "reproduced" and "of the final return's size (SPEC §8, the rule before these numbers were read): partly" in one.evidence
+    assert one.verdict == "reproduced"
+    assert "of the final return's size (SPEC §8, the rule before these numbers were read): partly" in one.evidence
     assert "inside the region" in two.rule and "rectangle: Δ CR − SW +0.7" in two.evidence
     assert "Over every agent (the rule before these numbers were read): not reproduced" in two.evidence or \
         "Over every agent (the rule before these numbers were read): partly" in two.evidence

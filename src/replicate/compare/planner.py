@@ -29,6 +29,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from replicate.compare.baselines import Policy
 from replicate.compare.best_layout import best_layout_once
+from replicate.core.schema import to_dict
 from replicate.core.studies import LloydConfig
 from replicate.world.env import CoverageEnv
 from replicate.world.geodesic import WaterGraph, distinct_nearest, water_graph
@@ -106,6 +107,16 @@ def planner_teacher(params, gains: dict | None) -> Policy | None:
     lloyd = ev.lloyd if not gains else LloydConfig(**gains["lloyd_tuned"]["gains"],
                                                    converged_steps=ev.lloyd.converged_steps)
     return clairvoyant_planner(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead, quick=True)
+
+
+def teacher_identity(params, gains: dict | None) -> dict | None:
+    """What makes ``planner_teacher`` this teacher, for a run's identity (``learn.runs.general_identity``): the
+    Lloyd gains it steers with (tuned, or the hand-set ``evaluate.lloyd``) and its water graph
+    (``evaluate.geodesic``); None without imitation. A run taught with other gains is another run."""
+    if params.general.learner.imitation == "none":
+        return None
+    return {"lloyd_gains": gains["lloyd_tuned"]["gains"] if gains else to_dict(params.evaluate.lloyd),
+            "geodesic": to_dict(params.evaluate.geodesic)}
 
 
 def graph_spacing(water, spacing: float) -> float:

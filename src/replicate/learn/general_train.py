@@ -180,11 +180,11 @@ class GeneralTrainer:
 
 
 def train_recorded(params, seed: int, out: Path, progress: bool = False,
-                   teacher: Callable[[CoverageEnv], np.ndarray] | None = None) -> dict:
-    """Train one seed of ``params.general`` into ``out`` (with ``teacher`` where it imitates one) and record its
-    identity in ``run.json``, so that a stage finding it there with the same settings keeps it
-    (``finished_general``). → the run's summary."""
+                   teacher: Callable[[CoverageEnv], np.ndarray] | None = None, taught_by: dict | None = None) -> dict:
+    """Train one seed of ``params.general`` into ``out`` (with ``teacher`` where it imitates one, ``taught_by``
+    saying which teacher it is) and record its identity in ``run.json``, so that a stage finding it there with the
+    same settings keeps it (``finished_general``). → the run's summary."""
     summary = GeneralTrainer(params, seed, out, progress=progress, teacher=teacher).run()
-    summary["identity"] = general_identity(params, seed)
+    summary["identity"] = general_identity(params, seed, taught_by)
     artifacts.write_json(out / "run.json", summary)
     return summary

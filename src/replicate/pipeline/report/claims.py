@@ -52,6 +52,7 @@ class Judge:
 
 BAND = {"range": "of the moving average's range", "final": "of the final return's size"}
 OTHER = {"range": "final", "final": "range", "inside": "all", "all": "inside"}
+FIRST_READING = "SPEC §8, the rule before these numbers were read"  # claim 1's band "final"
 
 
 def convergence_verdict(j: Judge, cr: dict, sw: dict, band: str) -> tuple[str, list, list]:
@@ -81,8 +82,8 @@ def claim_convergence(j: Judge) -> list[Claim]:
         "reproduced, one → partly",
         verdict,
         f"convergence episode per seed (None = not converged): CR {cr_ep}, SW {sw_ep}. With the band "
-        f"{BAND[other]} ({'SPEC §8, the rule before these numbers were read' if other == 'final' else 'the other reading'}): "
-        f"{was}, CR {cr_was}, SW {sw_was}; "
+        f"{BAND[other]} ({FIRST_READING if other == 'final' else 'the other reading'}): {was}, CR {cr_was}, "
+        f"SW {sw_was}; "
         "a band of the final return's size is near 0 for SW, whose return ends near 0 after starting at −180,064, "
         "and wide for CR, whose constant inside bonus dominates its return")]
 
