@@ -150,6 +150,9 @@ def clairvoyant_planner(cfg: LloydConfig, spacing: float, lookahead: float, quic
         alive = np.ones(env.pos.shape[:2], bool) if env.alive is None else env.alive
         if env.t == 0 or state.get("alive") is None or not np.array_equal(state["alive"], alive):
             if near_fleet:  # where the fleet in service is now
+                if len(alive) > 1:
+                    raise ValueError("near_fleet plans one environment's mission (its layout gathers toward that "
+                                     f"fleet), got {len(alive)} environments")
                 state["toward"] = tuple(np.round(env.pos[alive].mean(axis=0), 6).tolist())
             goal = np.full(alive.shape, -1)  # a new episode or a loss: every environment plans again
             for e, live in enumerate(alive):
