@@ -11,10 +11,11 @@ from replicate.compare.metrics import convergence_episode, mean_nearest_neighbou
 
 def test_the_spread_inside_counts_only_the_agents_in_the_region():
     """Two agents inside 1 m apart and one far outside: over every agent the outsider lengthens the mean; inside,
-    it is 1 m. Fewer than two inside spread over nothing of the region: 0."""
+    it is 1 m. Fewer than two inside measure no spread over the region: NaN, not the 0 of agents bunched."""
     region = box(0, 0, 3, 3)
     xy = np.array([[[1.0, 1.0], [2.0, 1.0], [10.0, 10.0]], [[1.0, 1.0], [9.0, 9.0], [10.0, 10.0]]])
-    assert nearest_neighbour_inside(region, xy).tolist() == [1.0, 0.0]
+    spread = nearest_neighbour_inside(region, xy)
+    assert spread[0] == 1.0 and np.isnan(spread[1])
     assert mean_nearest_neighbour(xy)[0] == pytest.approx((1 + 1 + np.hypot(8, 9)) / 3)
 
 

@@ -69,14 +69,20 @@ def test_the_general_training_learns_from_the_planner(params, tmp_path):
     learner was in, within the action box and zero for no buoy in service."""
     import dataclasses
 
-    from replicate.compare.planner import planner_teacher
+    from replicate.compare.planner import planner_teacher, teacher_identity
     from replicate.learn.general_train import GeneralTrainer
+    from replicate.learn.runs import general_identity
 
     from ..learn.test_general_train import tiny
 
     gc = tiny(params)
     gc = dataclasses.replace(gc, learner=dataclasses.replace(gc.learner, imitation="beside"))
     assert planner_teacher(params, None) is None  # params.yaml imitates nothing: no teacher
+    taught = dataclasses.replace(params, general=gc)
+    gains = {"lloyd_tuned": {"gains": {"gain": 30.0, "damping": 0.1}}}
+    assert general_identity(params, 4, teacher_identity(params, gains)) == general_identity(params, 4)
+    assert general_identity(taught, 4, teacher_identity(taught, gains)) != \
+        general_identity(taught, 4, teacher_identity(taught, None))  # taught with other gains: another run
     with pytest.raises(ValueError, match="teacher"):
         GeneralTrainer(params, 4, tmp_path / "none", progress=False, config=gc)
     trainer = GeneralTrainer(params, 4, tmp_path / "taught", progress=False, config=gc,

@@ -34,6 +34,28 @@ def test_shore_distances_match_shapely(name, regions):
     assert (ours < 50.0).all(), "every ray of a closed lake meets its shore"
 
 
+def test_the_shores_grid_reads_what_every_edge_reads_to_the_bit():
+    """``ShoreGrid``: the rays read only the edges of the cells they pass through, and the distances are those of
+    reading every edge (one cell), to the bit: on a reservoir of 1,711 edges, from points in the water, on the
+    shore (its vertices, where rays graze edges and pass through corners) and off the shore's bounding box."""
+    import shapely
+
+    from replicate.world.regions import region_from_file
+
+    water = region_from_file("data/lakes/mae_kuang_reservoir.geojson", "mae_kuang", 9.0).polygon
+    rng = np.random.default_rng(3)
+    minx, miny, maxx, maxy = water.bounds
+    off = np.array([[minx - 0.5, miny - 0.5], [maxx + 0.1, (miny + maxy) / 2], [(minx + maxx) / 2, maxy + 2.0]])
+    pos = np.concatenate([points_inside(water, 400, rng), shapely.get_coordinates(water.exterior)[::7], off])
+    segments = sensors.shore_segments(water)
+    grid, whole = sensors.ShoreGrid(segments), sensors.ShoreGrid(segments, cell=1e9)
+    assert grid.nx * grid.ny > 100 and whole.nx * whole.ny == 1
+    for directions in (sensors.ray_directions(8), sensors.ray_directions(12)):
+        for reach in (0.3, 2.0, 1e6):
+            np.testing.assert_array_equal(sensors.shore_distances(pos, grid, directions, reach),
+                                          sensors.shore_distances(pos, whole, directions, reach))
+
+
 def test_a_buoy_on_the_shore_sees_open_water_away_from_it():
     """A buoy resting on the shore (as the wall leaves it) reads 0 towards the land, not 0 in every direction."""
     water = box(0, 0, 3, 3)

@@ -26,8 +26,8 @@ def mean_nearest_neighbour(xy: np.ndarray) -> np.ndarray:
 
 def nearest_neighbour_inside(region: Polygon, xy: np.ndarray) -> np.ndarray:
     """Spread over the region: mean over the agents inside it (the closed region) of the distance to the nearest
-    other agent inside; 0 where fewer than two are inside (agents outside spread over nothing of it, and an agent
-    that leaves no longer inflates the spread). xy [E, N, 2] → [E]."""
+    other agent inside (an agent that leaves no longer inflates the spread); NaN where fewer than two are inside:
+    no spread over the region to measure, which a 0 would count as agents bunched together. xy [E, N, 2] → [E]."""
     inside = shapely.intersects_xy(region, xy[..., 0], xy[..., 1])  # [E, N]
     d = np.linalg.norm(xy[:, :, None, :] - xy[:, None, :, :], axis=-1)
     n = xy.shape[1]
@@ -35,7 +35,7 @@ def nearest_neighbour_inside(region: Polygon, xy: np.ndarray) -> np.ndarray:
     d = np.where(inside[:, None, :], d, np.inf).min(axis=2)  # each agent's nearest other agent inside
     counted = inside & np.isfinite(d)
     return np.where(counted.sum(axis=1) >= 2, np.where(counted, d, 0.0).sum(axis=1) / np.maximum(counted.sum(1), 1),
-                    0.0)
+                    np.nan)
 
 
 def moving_average(x: np.ndarray, window: int) -> np.ndarray:

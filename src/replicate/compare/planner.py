@@ -29,6 +29,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from replicate.compare.baselines import Policy
 from replicate.compare.best_layout import best_layout_once
+from replicate.core.schema import to_dict
 from replicate.core.studies import LloydConfig
 from replicate.world.env import CoverageEnv
 from replicate.world.geodesic import WaterGraph, distinct_nearest, water_graph
@@ -108,6 +109,16 @@ def planner_teacher(params, gains: dict | None) -> Policy | None:
     return clairvoyant_planner(lloyd, ev.geodesic.spacing, ev.geodesic.lookahead, quick=True)
 
 
+def teacher_identity(params, gains: dict | None) -> dict | None:
+    """What makes ``planner_teacher`` this teacher, for a run's identity (``learn.runs.general_identity``): the
+    Lloyd gains it steers with (tuned, or the hand-set ``evaluate.lloyd``) and its water graph
+    (``evaluate.geodesic``); None without imitation. A run taught with other gains is another run."""
+    if params.general.learner.imitation == "none":
+        return None
+    return {"lloyd_gains": gains["lloyd_tuned"]["gains"] if gains else to_dict(params.evaluate.lloyd),
+            "geodesic": to_dict(params.evaluate.geodesic)}
+
+
 def graph_spacing(water, spacing: float) -> float:
     """The water graph's spacing: ``spacing``, coarser on a lake whose graph would hold more than
     ``MAX_GRAPH_POINTS`` (a real lake at a 25 m radius is hundreds of radii across)."""
@@ -139,6 +150,9 @@ def clairvoyant_planner(cfg: LloydConfig, spacing: float, lookahead: float, quic
         alive = np.ones(env.pos.shape[:2], bool) if env.alive is None else env.alive
         if env.t == 0 or state.get("alive") is None or not np.array_equal(state["alive"], alive):
             if near_fleet:  # where the fleet in service is now
+                if len(alive) > 1:
+                    raise ValueError("near_fleet plans one environment's mission (its layout gathers toward that "
+                                     f"fleet), got {len(alive)} environments")
                 state["toward"] = tuple(np.round(env.pos[alive].mean(axis=0), 6).tolist())
             goal = np.full(alive.shape, -1)  # a new episode or a loss: every environment plans again
             for e, live in enumerate(alive):

@@ -173,19 +173,18 @@ class GeneralTrainer:
         artifacts.write_csv(self.out / "curve.csv.gz", CURVE_COLUMNS, self.rows)
         summary = {"status": "finished", "seed": self.seed, "general": to_dict(gc),
                    "worlds": [{"region": w.region.name, "n_agents": w.n_agents} for w in self.worlds],
-                   "selected_episode": best["episodes"], "selected_validation_coverage": best["score"],
-                   "wall_seconds": round(wall, 2), "cpu_seconds": round(cpu, 2),
+                   **self.loop.selection(0), "wall_seconds": round(wall, 2), "cpu_seconds": round(cpu, 2),
                    "arithmetic": general_fingerprint()}  # which numbers trained it (``fingerprint``)
         artifacts.write_json(self.out / "run.json", summary)
         return summary
 
 
 def train_recorded(params, seed: int, out: Path, progress: bool = False,
-                   teacher: Callable[[CoverageEnv], np.ndarray] | None = None) -> dict:
-    """Train one seed of ``params.general`` into ``out`` (with ``teacher`` where it imitates one) and record its
-    identity in ``run.json``, so that a stage finding it there with the same settings keeps it
-    (``finished_general``). → the run's summary."""
+                   teacher: Callable[[CoverageEnv], np.ndarray] | None = None, taught_by: dict | None = None) -> dict:
+    """Train one seed of ``params.general`` into ``out`` (with ``teacher`` where it imitates one, ``taught_by``
+    saying which teacher it is) and record its identity in ``run.json``, so that a stage finding it there with the
+    same settings keeps it (``finished_general``). → the run's summary."""
     summary = GeneralTrainer(params, seed, out, progress=progress, teacher=teacher).run()
-    summary["identity"] = general_identity(params, seed)
+    summary["identity"] = general_identity(params, seed, taught_by)
     artifacts.write_json(out / "run.json", summary)
     return summary

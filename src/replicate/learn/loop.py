@@ -71,6 +71,13 @@ class TrainingLoop:
         draws = [m.sample(rng, self.cfg.batch_size) for m, rng in zip(self.memories, self.sample_rngs)]
         return Batch.stack(draws) if self.stacked else draws[0]
 
+    def selection(self, run: int) -> dict:
+        """The actor run ``run`` keeps, as a trainer's summary records it: the episode it was trained for and its
+        validation coverage (nothing when the run never validated)."""
+        best = self.kept[run]
+        return {} if best is None else {"selected_episode": best["episodes"],
+                                        "selected_validation_coverage": best["score"]}
+
     def keep(self, run: int, score: float, episodes: int, actor: Callable[[], dict], ties: str = "later") -> bool:
         """Keep run ``run``'s actor (``actor()``, a copy of its weights) when ``score`` is its best validation so
         far; ``ties`` "later" keeps the newer actor on an equal score, "earlier" the one already kept (a

@@ -80,13 +80,16 @@ def identity_of(section) -> dict:
     return out
 
 
-def general_identity(params, seed: int) -> dict:
-    """What makes two general runs the same run: the version, the seed and every value they train with."""
+def general_identity(params, seed: int, teacher: dict | None = None) -> dict:
+    """What makes two general runs the same run: the version, the seed and every value they train with, and where
+    it imitates a teacher (``general.learner.imitation``), what makes the teacher that one (``teacher``: the
+    planner's ``compare.planner.teacher_identity``)."""
     trained = {k: v for k, v in identity_of(params.general).items()
                if k not in ("seeds", "suite")}  # what it trained with, not how it is evaluated
+    taught = {} if params.general.learner.imitation == "none" else {"teacher": teacher}
     return {"general_version": GENERAL_VERSION, "seed": seed, "general": trained,
             "world": identity_of(params.world), "coverage": identity_of(params.coverage),
-            "cr_reward": identity_of(params.cr_reward), "regions": to_dict(params.regions)}
+            "cr_reward": identity_of(params.cr_reward), "regions": to_dict(params.regions), **taught}
 
 
 def finished_general(out: Path, identity: dict) -> dict | None:

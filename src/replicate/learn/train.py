@@ -218,10 +218,8 @@ class Trainer:
                 "updates": self.loop.updates,
                 "transitions": self.transitions,
                 "final_coverage_last100": float(np.mean([r[self.column("coverage")] for r in self.rows[k][-100:]])),
+                **self.loop.selection(k),
             }
-            if self.loop.kept[k] is not None:
-                summary["selected_episode"] = self.loop.kept[k]["episodes"]
-                summary["selected_validation_coverage"] = self.loop.kept[k]["score"]
             artifacts.write_json(out / "run.json", summary)
             (out / "checkpoint.pt").unlink(missing_ok=True)
             summaries.append(summary)

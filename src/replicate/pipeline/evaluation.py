@@ -166,7 +166,9 @@ def summarise_metrics(results, boot: stats.Bootstrap = stats.DEFAULT) -> dict:
             "nearest_neighbour_per_seed": [round(r["nearest_neighbour"]["mean"], 4) for r in rs],
             "nearest_neighbour_inside": stats.mean_interval([r["nearest_neighbour_inside"]["mean"] for r in rs],
                                                             boot),
-            "nearest_neighbour_inside_per_seed": [round(r["nearest_neighbour_inside"]["mean"], 4) for r in rs],
+            "nearest_neighbour_inside_per_seed": [None if r["nearest_neighbour_inside"]["n"] == 0 else
+                                                  round(r["nearest_neighbour_inside"]["mean"], 4) for r in rs],
+            "nearest_neighbour_inside_episodes": [r["nearest_neighbour_inside"]["n"] for r in rs],  # measured
             "fraction_inside": stats.mean_interval([r["fraction_inside"]["mean"] for r in rs], boot),
             "convergence_episode": [r["convergence_episode"] for r in rs],
             "convergence_by_tolerance": {band: {f: [r["convergence_by_tolerance"][band][f] for r in rs] for f in by}

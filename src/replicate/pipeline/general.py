@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from replicate.compare.evaluate import evaluate_policy
-from replicate.compare.planner import planner_teacher
+from replicate.compare.planner import planner_teacher, teacher_identity
 from replicate.compare.suite import SuiteCell, at_density, drift_heading, suite_cells, suite_event, suite_lake
 from replicate.core import artifacts
 from replicate.core.executor import map_jobs
@@ -33,11 +33,12 @@ def _train_seed(job: dict) -> dict:
     training_process()
     params = load_params(job["params"])
     out = Path(job["out"])
-    done = finished_general(out, general_identity(params, job["seed"]))
+    gains = json.loads(Path(job["gains"]).read_text()) if job.get("gains") else None
+    done = finished_general(out, general_identity(params, job["seed"], teacher_identity(params, gains)))
     if done is not None:
         return {**done, "skipped": True}
-    gains = json.loads(Path(job["gains"]).read_text()) if job.get("gains") else None
-    return train_recorded(params, job["seed"], out, teacher=planner_teacher(params, gains))
+    return train_recorded(params, job["seed"], out, teacher=planner_teacher(params, gains),
+                          taught_by=teacher_identity(params, gains))
 
 
 def train_seeds(params_path: str, out: Path, seeds, gains_path: str | None, workers: int,

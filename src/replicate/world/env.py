@@ -153,7 +153,7 @@ class CoverageEnv:
         if pay.shore_penalty and not self.shore_rays:
             raise ValueError("a shore penalty needs the shore rays of the local observation (observation='local')")
         if observation == "local":  # the shore's edges and the rays' directions, once
-            self.shore_edges = sensors.shore_segments(region.polygon)
+            self.shore_edges = sensors.ShoreGrid(sensors.shore_segments(region.polygon))
             self.ray_directions = sensors.ray_directions(self.sensor_config.rays)
         # first: it refuses a region too narrow, naming it
         self.patch = start_patch(region.polygon, world.start_patch, name=region.name, scale=region.scale)

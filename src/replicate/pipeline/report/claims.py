@@ -52,6 +52,7 @@ class Judge:
 
 BAND = {"range": "of the moving average's range", "final": "of the final return's size"}
 OTHER = {"range": "final", "final": "range", "inside": "all", "all": "inside"}
+FIRST_READING = "SPEC §8, the rule before these numbers were read"  # claim 1's band "final"
 
 
 def convergence_verdict(j: Judge, cr: dict, sw: dict, band: str) -> tuple[str, list, list]:
@@ -81,7 +82,8 @@ def claim_convergence(j: Judge) -> list[Claim]:
         "reproduced, one → partly",
         verdict,
         f"convergence episode per seed (None = not converged): CR {cr_ep}, SW {sw_ep}. With the band "
-        f"{BAND[other]} ({'SPEC §8' if other == 'final' else 'the other reading'}): {was}, CR {cr_was}, SW {sw_was}; "
+        f"{BAND[other]} ({FIRST_READING if other == 'final' else 'the other reading'}): {was}, CR {cr_was}, "
+        f"SW {sw_was}; "
         "a band of the final return's size is near 0 for SW, whose return ends near 0 after starting at −180,064, "
         "and wide for CR, whose constant inside bonus dominates its return")]
 
@@ -96,10 +98,20 @@ def spread_verdict(j: Judge, spread: str) -> tuple[str, list[str]]:
     for region in ("rectangle", "square"):
         cr, sw = j.get("cr", region), j.get("sw", region)
         if cr and sw and key in cr and key in sw:
-            ok, d = beats(cr[key], sw[key], j.r.spread_margin, j.boot)
+            measured = {m: [v for v in run[key] if v is not None] for m, run in (("CR", cr), ("SW", sw))}
+            short = [m for m, v in measured.items() if len(v) < 2]
+            if short:  # the agents inside: fewer than two in every episode of a seed measure no spread there
+                ev.append(f"{region}: not measurable ({' and '.join(short)}: fewer than two agents inside in "
+                          "every episode of all but at most one seed)")
+                continue
+            ok, d = beats(measured["CR"], measured["SW"], j.r.spread_margin, j.boot)
             holds.append(ok)
             inside = "" if "fraction_inside" not in cr else (
                 f" (fully inside: CR {cr['fraction_inside']['mean']:.3f}, SW {sw['fraction_inside']['mean']:.3f})")
+            if spread == "inside" and "nearest_neighbour_inside_episodes" in sw:
+                inside += (f"; episodes measured (two or more agents inside), every seed's: CR "
+                           f"{sum(cr['nearest_neighbour_inside_episodes'])}, SW "
+                           f"{sum(sw['nearest_neighbour_inside_episodes'])}")
             ev.append(f"{region}: Δ CR − SW {fmt_delta(d)} m{inside}")
     return (over_cells(holds, j.r.partly) if holds else ""), ev
 
@@ -115,7 +127,9 @@ def claim_spread(j: Judge) -> list[Claim]:
         "2. CR-MARL spreads the agents more than SW-MARL (rectangle and square)",
         f"per region, the {r.level:.0%} interval of Δ mean nearest-neighbour distance {SPREAD[r.spread][1]} (CR − "
         f"SW, over seeds; `report.spread`) lies above {r.spread_margin:.3f} m; {rule_over_cells(r)}",
-        verdict, "; ".join(ev) + (f". {SPREAD[other][1].capitalize()}: {was}, " + "; ".join(ev_was) +
+        verdict, "; ".join(ev) + (f". {SPREAD[other][1].capitalize()}"
+                                  + (" (the rule before these numbers were read)" if other == "all" else "")
+                                  + f": {was}, " + "; ".join(ev_was) +
                                   "; agents that leave the region lengthen the distance over every agent without "
                                   "spreading over the region" if ev_was else ""))]
 

@@ -4,8 +4,8 @@ baselines, as Markdown rows, the lakes of each kind (``compare.suite.LakeKind``)
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
+from replicate.compare.stats import DEFAULT, Bootstrap, mean_interval
 from replicate.compare.suite import KINDS, lake_kinds
 from replicate.core.params import Cell, run_config
 from replicate.core.sections import DRIFTS, EVENTS
@@ -48,14 +48,33 @@ def seed_coverages(cell: dict) -> dict[str, float]:
     return {label: r["coverage"]["mean"] for label, r in seeds.items()}
 
 
-def over_seeds(values: list[float], level: float = 0.95) -> str:
-    """mean [interval] over training seeds, the seed as the unit: Student's t (the percentile bootstrap keeps a
-    null difference too often at fewer than 10 seeds); the mean alone for one seed."""
-    v = np.asarray(values, float)
-    if len(v) < 2:
-        return f"{v.mean():.3f}"
-    half = stats.t.ppf(0.5 + level / 2, len(v) - 1) * v.std(ddof=1) / np.sqrt(len(v))
-    return f"{v.mean():.3f} [{v.mean() - half:.3f}, {v.mean() + half:.3f}]"
+def over_seeds(values: list[float], boot: Bootstrap = DEFAULT) -> str:
+    """mean [interval] over training seeds, the seed as the unit (``stats.mean_interval`` with ``boot``, the
+    ``report`` section's): Student's t below ``t_below`` seeds (the percentile bootstrap keeps a null difference
+    too often at few seeds), else the percentile bootstrap; the mean alone for one seed."""
+    ci = mean_interval(values, boot)
+    if ci["n"] < 2:
+        return f"{ci['mean']:.3f}"
+    lo, hi = (ci["t_lo"], ci["t_hi"]) if "t_lo" in ci else (ci["lo"], ci["hi"])
+    return f"{ci['mean']:.3f} [{lo:.3f}, {hi:.3f}]"
+
+
+def one_limit(cells: list[dict]) -> list[dict]:
+    """``cells`` with one best layout per lake, fleet and buoys in service: the best of their cells' searches. Each
+    cell's search also starts from its own policies' best final layout (``best_layout.best_coverage_from``), so
+    the cells of one lake may have found different layouts; the limit of a lake and fleet is the best of them,
+    whatever start or event a cell had (a layout has no physics)."""
+    best: dict[tuple, dict] = {}
+    for c in cells:
+        layout = c["baselines"].get("best_layout")
+        if layout is not None:
+            key = (c["region"], c["n_agents"], layout.get("buoys"))
+            if key not in best or layout["coverage"]["mean"] > best[key]["coverage"]["mean"]:
+                best[key] = layout
+    return [c if "best_layout" not in c["baselines"] else
+            c | {"baselines": c["baselines"] | {"best_layout": best[(c["region"], c["n_agents"],
+                                                                     c["baselines"]["best_layout"].get("buoys"))]}}
+            for c in cells]
 
 
 def still_ratios(cells: list[dict], seed: str) -> list[float]:
@@ -64,10 +83,20 @@ def still_ratios(cells: list[dict], seed: str) -> list[float]:
             if c["event"] == "none"]
 
 
+def rival(c: dict, name: str) -> float:
+    """The mean coverage of comparison ``name`` in cell ``c``."""
+    return c["baselines"][name]["coverage"]["mean"]
+
+
+def narrow_cells(cells: list[dict], t) -> list[dict]:
+    """The still-water cells of lakes where lloyd_tuned stops ``t.narrow_gap`` or more below the best layout
+    (arms, islands): ``report.general``'s bar there asks more than Lloyd's coverage of the policy."""
+    return [c for c in cells if c["event"] == "none" and rival(c, "best_layout") - rival(c, "lloyd_tuned")
+            >= t.narrow_gap]
+
+
 def general_checks(cells: list[dict], t) -> list[tuple[str, list[dict], list[bool]]]:
     """(bar, the cells it applies to, whether each meets it with every seed) of ``report.general`` (``t``)."""
-    def rival(c, name):
-        return c["baselines"][name]["coverage"]["mean"]
 
     def every_seed(c, bar) -> bool:
         return all(bar(v) for v in seed_coverages(c).values())
@@ -80,7 +109,7 @@ def general_checks(cells: list[dict], t) -> list[tuple[str, list[dict], list[boo
         return all(s in own and v >= share * own[s] for s, v in seed_coverages(c).items())
 
     lose, drift = [c for c in cells if c["event"] == "lose"], [c for c in cells if c["event"] in DRIFTS]
-    narrow = [c for c in still if rival(c, "best_layout") - rival(c, "lloyd_tuned") >= t.narrow_gap]
+    narrow = narrow_cells(still, t)
     return [
         (f"still water: ≥ {t.of_lloyd:.0%} of lloyd_tuned", still,
          [every_seed(c, lambda v, c=c: v >= t.of_lloyd * rival(c, "lloyd_tuned")) for c in still]),
@@ -106,24 +135,31 @@ def general_verdicts(cells: list[dict], t) -> list[tuple[str, str, str]]:
             for bar, which, ok in general_checks(cells, t) if which]
 
 
+VERDICT_KINDS = ("test", "real")  # the lakes that neither the training nor a choice read: each its own verdict
+
+
 def bar_table(params, cells: list[dict]) -> list[str]:
-    """The bars of ``report.general``: cells meeting each with every seed, per lake kind; the verdict reads the
-    lakes that neither the training nor a choice read (test and real) together."""
+    """The bars of ``report.general``: cells meeting each with every seed, per lake kind, and a verdict for each
+    kind of ``VERDICT_KINDS`` (never one verdict over two kinds)."""
     t = params.report.general
     kinds = {k: [c for c in cells if kind_of(params, c) == k] for k in KINDS}
     per_kind = {k: {bar: (ok, which) for bar, which, ok in general_checks(group, t)} for k, group in kinds.items()}
-    unseen = [c for c in cells if kind_of(params, c) in ("test", "real")]
-    rows = ["| bar (`report.general`) | " + " | ".join(KIND_TITLE[k].split(" (")[0] for k in KINDS)
-            + " | verdict (test and real lakes) |", "|---|" + "---|" * (len(KINDS) + 1)]
-    for bar, _, verdict in general_verdicts(unseen, t):
-        counts = [f"{sum(per_kind[k][bar][0])} of {len(per_kind[k][bar][1])}" if bar in per_kind[k] else "—"
-                  for k in KINDS]
-        rows.append(f"| {bar} | " + " | ".join(counts) + f" | **{verdict}** |")
-    seeds = sorted({s for c in unseen for s in c.get("seeds", {})})
-    if seeds and all(set(c.get("seeds", {})) == set(seeds) for c in unseen):
-        ratios = {s: still_ratios(unseen, s) for s in seeds}
-        rows += ["", "Still water on the test and real lakes, coverage / lloyd_tuned per seed: " + "; ".join(
-            f"{s} mean {np.mean(r):.3f}, worst {min(r):.3f}" for s, r in ratios.items()) + "."]
+    verdicts = {k: {bar: verdict for bar, _, verdict in general_verdicts(kinds[k], t)} for k in VERDICT_KINDS}
+    bars = [bar for bar, _, _ in general_checks(cells, t)]
+    rows = ["| bar (`report.general`) | " + " | ".join(KIND_TITLE[k].split(" (")[0] for k in KINDS) + " | "
+            + " | ".join(f"verdict: {k} lakes" for k in VERDICT_KINDS) + " |",
+            "|---|" + "---|" * (len(KINDS) + len(VERDICT_KINDS))]
+    for bar in bars:
+        counts = [f"{sum(per_kind[k][bar][0])} of {len(per_kind[k][bar][1])}" if per_kind[k].get(bar, ((), ()))[1]
+                  else "—" for k in KINDS]
+        said = [f"**{verdicts[k][bar]}**" if bar in verdicts[k] else "—" for k in VERDICT_KINDS]
+        rows.append(f"| {bar} | " + " | ".join(counts) + " | " + " | ".join(said) + " |")
+    for k in VERDICT_KINDS:
+        seeds = sorted({s for c in kinds[k] for s in c.get("seeds", {})})
+        if seeds and all(set(c.get("seeds", {})) == set(seeds) for c in kinds[k]):
+            ratios = {s: still_ratios(kinds[k], s) for s in seeds}
+            rows += ["", f"Still water on the {k} lakes, coverage / lloyd_tuned per seed: " + "; ".join(
+                f"{s} mean {np.mean(r):.3f}, worst {min(r):.3f}" for s, r in ratios.items()) + "."]
     return rows
 
 
@@ -150,8 +186,8 @@ def rivals_of(c: dict) -> list[float]:
 
 
 def row(label, n, start, event, general: str, seeds: list[float], cr: str, rivals: list[float],
-        ratios: list[str]) -> str:
-    return (f"| {label} | {n} | {start} | {event} | {general} | {over_seeds(seeds)} | {cr} | "
+        ratios: list[str], boot: Bootstrap = DEFAULT) -> str:
+    return (f"| {label} | {n} | {start} | {event} | {general} | {over_seeds(seeds, boot)} | {cr} | "
             + " | ".join("—" if v != v else f"{v:.3f}" for v in rivals) + " | " + " | ".join(ratios) + " |")
 
 
@@ -174,11 +210,12 @@ def cell_rows(params, cells: list[dict], summary: dict) -> list[str]:
         seeds, rivals = list(seed_coverages(c).values()), rivals_of(c)
         ratios = [share(float(np.mean(seeds)), rivals[YARDSTICKS.index(k)]) for k in READ_AGAINST]
         out.append(row(c["region"], c["n_agents"], c["start"], c["event"], fmt(c["coverage"]), seeds,
-                       per_region_cr(params, summary, c), rivals, ["—" if r != r else f"{r:.3f}" for r in ratios]))
+                       per_region_cr(params, summary, c), rivals, ["—" if r != r else f"{r:.3f}" for r in ratios],
+                       Bootstrap.of(params.report)))
     return out
 
 
-def pooled_rows(cells: list[dict], kind: str = "test") -> list[str]:
+def pooled_rows(cells: list[dict], kind: str = "test", boot: Bootstrap = DEFAULT) -> list[str]:
     """Generated lakes of ``kind`` pooled per fleet, start and event: means over lakes (the deployed policy's range
     over lakes), the seeds' interval over seeds of their mean over lakes, the worst lake's ratio to each yardstick."""
     groups: dict[tuple, list[dict]] = {}
@@ -195,13 +232,16 @@ def pooled_rows(cells: list[dict], kind: str = "test") -> list[str]:
                        f"{np.mean(general):.3f} ({min(general):.3f}-{max(general):.3f})", seeds, "—",
                        [nanmean(col) for col in np.array([rivals_of(c) for c in group]).T],
                        ["—" if np.isnan(r).all() else f"{np.nanmean(r):.3f} (worst {np.nanmin(r):.3f})"
-                        for r in ratios.T]))
+                        for r in ratios.T], boot))
     return out
 
 
 def general_tables(params, cells: list[dict], summary: dict) -> list[str]:
     """One table per lake kind: every cell of the trained-on and the real lakes, the generated ones pooled."""
-    head = ("| lake | N | start | event | general policy (deployed) | seeds: mean [95 % CI over seeds] | tuned CR | "
+    boot = Bootstrap.of(params.report)
+    how = f"Student's t below {boot.t_below} seeds" if len(seed_coverages(cells[0])) < boot.t_below else "percentile"
+    head = (f"| lake | N | start | event | general policy (deployed) | seeds: mean [{boot.level:.0%} CI over seeds, "
+            f"{how}] | tuned CR | "
             "naive_tuned | decentralised Lloyd | lloyd_tuned | geodesic Lloyd | planner | best layout | upper bound | "
             "seeds / lloyd_tuned | seeds / planner | seeds / best layout |")
     lines = []
@@ -209,7 +249,7 @@ def general_tables(params, cells: list[dict], summary: dict) -> list[str]:
         group = [c for c in cells if kind_of(params, c) == kind]
         if group:
             lines += [f"**{KIND_TITLE[kind][0].upper()}{KIND_TITLE[kind][1:]}**", "", head, "|" + "---|" * 17,
-                      *(pooled_rows(group, kind) if kind in POOLED else cell_rows(params, group, summary)), ""]
+                      *(pooled_rows(group, kind, boot) if kind in POOLED else cell_rows(params, group, summary)), ""]
     return lines
 
 
@@ -233,15 +273,19 @@ def share_table(params, cells: list[dict]) -> list[str]:
                   for group in kinds.values() for of in ("planner", "best_layout")]
         label = "general policy (mean of its seeds)" if who == "policy" else who
         rows.append(f"| {label} | " + " | ".join("—" if v != v else f"{v:.3f}" for v in shares) + " |")
-    found = [c["baselines"]["best_layout"].get("from_policy", False) for group in kinds.values() for c in group]
+    every = [c for group in kinds.values() for c in group]
+    found = [c for c in every if c["baselines"]["best_layout"].get("from_policy", False)]
+    narrow = narrow_cells(every, params.report.general)
     return ["Every controller as a share of the planner and of the best layout (mean over the cells of a kind, "
             "every start and event):", "", *rows, "",
-            f"The search from the policies' best final layout gave the best layout in {sum(found)} of {len(found)} "
-            "cells."]
+            f"The search from the policies' best final layout gave the best layout of the lake and fleet in "
+            f"{len(found)} of {len(every)} cells; {sum(c in found for c in narrow)} of the {len(narrow)} cells of the "
+            "bar on lakes where lloyd_tuned stops short of the best layout are among them (a layout the policy "
+            "found can bring a cell into that bar)."]
 
 
 def general_section(params, general: dict, summary: dict | None = None) -> list[str]:
-    cells = general["cells"]
+    cells = one_limit(general["cells"])
     su = params.general.suite
     seeds = general.get("seeds", [])
     trained = [r for r in params.regions if r in params.general.regions]

@@ -34,7 +34,7 @@ def add(sub, verb: dict, regions: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """``train-general``: one seed of the general policy into ``--out`` (no checkpoints: an interrupted run starts
     again; 3,000 episodes take about half an hour of one core)."""
-    from replicate.compare.planner import planner_teacher
+    from replicate.compare.planner import planner_teacher, teacher_identity
     from replicate.core.outputs import locked, replacing
     from replicate.learn.general_train import train_recorded
     from replicate.learn.process import training_process
@@ -60,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
     training_process()
     # recorded as the stages record a seed: train_general or train_yardstick keeps this run when its values match
     params = dataclasses.replace(params, general=config)
-    summary = train_recorded(params, args.seed, out, not args.no_progress, planner_teacher(params, gains))
+    summary = train_recorded(params, args.seed, out, not args.no_progress, planner_teacher(params, gains),
+                             teacher_identity(params, gains))
     print(f"best validation coverage {summary['selected_validation_coverage']:.3f} at episode "
           f"{summary['selected_episode']}; wrote {out} (`replicate export {out}` makes its policy file)")
     return 0
