@@ -24,7 +24,8 @@ INFORMATION = {
     "lloyd_tuned": "the map and every buoy (clairvoyant)",
     "geodesic_lloyd": "the map and every buoy, cells and paths through the water (clairvoyant)",
     "planner": "the map and every buoy: the best layout, each buoy assigned a place (Hungarian method on the "
-               "distances through the water) and sailed there under the same physics: what is reachable in T",
+               "distances through the water) and sailed there under the same physics (not a limit at T: a buoy "
+               "covers nothing new on its way)",
     "best_layout": "the map, no physics and no time: a layout searched offline from greedy placements, Lloyd's "
                    "layout and the policies' best final layout, every buoy in the water (a heuristic, not a bound)",
     "upper_bound": "min(1, N·A(Cov)/A(Reg)): no layout covers more",
@@ -254,7 +255,7 @@ def general_tables(params, cells: list[dict], summary: dict) -> list[str]:
 
 
 def share_table(params, cells: list[dict]) -> list[str]:
-    """Every controller as a share of the planner (what is reachable in T) and of the best layout (no physics, no
+    """Every controller as a share of the planner (the best layout, sailed to) and of the best layout (no physics, no
     time), the mean over the cells of each lake kind (every start and event): the seeds' mean coverage for the
     policy. Empty where no cell has the planner."""
     kinds = {k: [c for c in cells if kind_of(params, c) == k and "planner" in c["baselines"]] for k in KINDS}
