@@ -169,7 +169,7 @@ def test_cover_uses_the_general_policy_zero_shot_and_fine_tuned(two_runs, tmp_pa
     assert summary["coverage"]["mean"] <= summary["baselines"]["best_layout"]["coverage"]["mean"] + 0.01
     layers, episode = check_field_files(tmp_path / "zero", "episode")
     assert set(layers["tracks"].method) == {"general policy", "lloyd", "decentralised_lloyd", "planner"}
-    assert len(layers["waypoints"]) == 3 * 6 * (summary["episode_length"] + 1)
+    assert len(layers["waypoints"]) == 4 * 6 * (summary["episode_length"] + 1)  # the four tracks, every step
     tuned = cli(*small, "cover", "--region", str(tmp_path / "lake.geojson"), "--policy", str(tmp_path / "general.pt"),
                 "--n-agents", "6", "--finetune", "8", "--out", str(tmp_path / "tuned"), "--no-progress")
     assert tuned.wait(timeout=600) == 0

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Hashable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -229,6 +230,51 @@ class Phases:
         self.bar.close()
 
 
+@dataclass
+class SameEpisodes:
+    """Every controller of one evaluation on the same episodes: ``evaluate.episodes`` from the evaluation seed at
+    ``start``, ``lose`` buoys lost half-way, in ``current``, for ``steps``; ``reached`` keeps each learned policy's
+    best final layout, a start of the best layout's search (``limit``)."""
+
+    region: Region
+    params: Params
+    n_agents: int
+    start: str
+    lose: int
+    current: Current | tuple[float, float] | None
+    steps: int
+    reached: list[tuple[float, np.ndarray]] = field(default_factory=list)  # (coverage, layout [N_live, 2])
+
+    def run(self, policy, sensors: SensorsConfig | None) -> tuple[np.ndarray, np.ndarray]:
+        """Every buoy's position at every step [T + 1, E, N, 2] and the live buoys' last [E, N_live, 2]."""
+        ev = self.params.evaluate
+        env, _ = general_evaluation_env(self.params, self.region, self.n_agents, ev.episodes, sensors, self.current)
+        trace = rollout(env, policy, self.steps, ev.seed, StartsConfig(start=self.start, lose=self.lose))
+        return trace["positions"], trace["live"]
+
+    def per_episode(self, live: np.ndarray) -> np.ndarray:  # SPEC §8's exact coverage of the buoys in service
+        return coverage.coverage_fraction(self.region.polygon, live, self.params.coverage.radius,
+                                          self.params.coverage.edges)
+
+    def covered(self, policy) -> dict:
+        """A baseline's coverage (mean and interval over episodes)."""
+        return mean_interval(self.per_episode(self.run(policy, None)[1]))
+
+    def learned(self, module, meta) -> dict:
+        """A general policy's coverage and largest distance outside the water, on its own sensors."""
+        positions, live = self.run(fleet_policy(module), SensorsConfig(**meta["sensor_config"]))
+        per_episode = self.per_episode(live)
+        self.reached.append((float(per_episode.max()), live[int(np.argmax(per_episode))]))
+        return {"coverage": mean_interval(per_episode),
+                "max_outside_m": float(distance_outside(self.region.polygon, positions).max()) * self.region.scale}
+
+    def limit(self) -> tuple[float, bool]:
+        """The best layout of the buoys in service, searched from the policies' best final layout too."""
+        c = self.params.coverage
+        return best_coverage_from(self.region.polygon, self.n_agents - self.lose, c.radius, c.edges,
+                                  max(self.reached, key=lambda r: r[0])[1])
+
+
 def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_agents: int, start: str = "corner",
                     lose: int = 0, current: Current | tuple[float, float] | None = None, progress: bool = False,
                     seeds: dict[Hashable, str | Path] | None = None, geodesic: bool = True, naive: bool = True,
@@ -251,46 +297,21 @@ def evaluate_policy(policy_path: str | Path, region: Region, params: Params, n_a
 
     module, meta = read_general_policy(policy_path)
     others = {label: read_general_policy(path) for label, path in (seeds or {}).items()}
-    ev = params.evaluate
     steps = horizon(params.general, region, params.world.region_area)
-
-    def episodes(policy, sensors: SensorsConfig | None) -> np.ndarray:
-        """Every buoy's position at every step [T + 1, E, N, 2] and the live buoys' last [E, N_live, 2]."""
-        env, _ = general_evaluation_env(params, region, n_agents, ev.episodes, sensors, current)
-        trace = rollout(env, policy, steps, ev.seed, StartsConfig(start=start, lose=lose))
-        return trace["positions"], trace["live"]
-
-    def covered(live: np.ndarray) -> dict:  # SPEC §8's exact coverage, of the buoys still in service
-        return mean_interval(coverage.coverage_fraction(region.polygon, live, params.coverage.radius,
-                                                       params.coverage.edges))
-
-    reached: list[tuple[float, np.ndarray]] = []  # (coverage, layout [N_live, 2]) of each policy's best episode
-
-    def learned(module, meta) -> dict:
-        positions, live = episodes(fleet_policy(module), SensorsConfig(**meta["sensor_config"]))
-        per_episode = coverage.coverage_fraction(region.polygon, live, params.coverage.radius, params.coverage.edges)
-        reached.append((float(per_episode.max()), live[int(np.argmax(per_episode))]))
-        return {"coverage": mean_interval(per_episode),
-                "max_outside_m": float(distance_outside(region.polygon, positions).max()) * region.scale}
-
-    def limit() -> tuple[float, bool]:  # the best layout, searched from the policies' best final layout too
-        return best_coverage_from(region.polygon, n_agents - lose, params.coverage.radius, params.coverage.edges,
-                                  max(reached, key=lambda r: r[0])[1])
-
+    same = SameEpisodes(region, params, n_agents, start, lose, current, steps)
     rivals, how = general_baselines(params, meta.get("baseline_gains"), geodesic, naive, decentralised, planner)
     lloyd_key = lloyd_name(rivals)
-    aside = Beside(lambda: covered(episodes(rivals[lloyd_key], None)[1])) if beside else None
+    aside = Beside(lambda: same.covered(rivals[lloyd_key])) if beside else None
     with Phases(region.name, 1 + len(others) + len(rivals) + best_layout, progress) as phase:
         phase("the policy")
         out = {"kind": "general policy", "policy": str(policy_path), "region": region.name, "n_agents": n_agents,
                "start": start, "lose": lose, "current": current_record(current), "steps": steps,
-               "episodes": ev.episodes, **learned(module, meta), "baselines": {}}
+               "episodes": params.evaluate.episodes, **same.learned(module, meta), "baselines": {}}
         for label, policy in others.items():
             phase(f"seed {label}")
-            out.setdefault("seeds", {})[label] = learned(*policy)
+            out.setdefault("seeds", {})[label] = same.learned(*policy)
         out["baselines"], (best, from_policy) = rivals_and_limit(
-            rivals, lambda policy: covered(episodes(policy, None)[1]), limit if best_layout else None,
-            {lloyd_key: aside} if aside else {}, phase)
+            rivals, same.covered, same.limit if best_layout else None, {lloyd_key: aside} if aside else {}, phase)
         for name in rivals:
             out["baselines"][name]["gains"] = how
         out["baselines"] |= limits(region, params, n_agents - lose, best if best_layout else None, from_policy)
