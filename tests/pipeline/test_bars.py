@@ -13,7 +13,7 @@ from replicate.compare import baselines
 from replicate.compare.best_layout import best_coverage
 from replicate.compare.evaluate import rollout
 from replicate.compare.rivals import general_baselines
-from replicate.compare.suite import SuiteCell, at_density, drift_heading, suite_event, suite_lake
+from replicate.compare.suite import SuiteCell, at_density, drift_heading, suite_cells, suite_event, suite_lake
 from replicate.core.studies import StartsConfig
 from replicate.pipeline.report.general import general_checks
 from replicate.world.coverage import coverage_fraction
@@ -50,3 +50,16 @@ def test_random_actions_fail_every_bar(params):
     assert len(checks) == 7
     for bar, which, ok in checks:
         assert which and not all(ok), f"random actions meet the bar {bar!r}"
+
+
+def test_no_committed_cell_beats_the_upper_bound(params):
+    """The bound min(1, N·A(Cov)/A(Reg)) of the buoys in service holds over every cell of the committed suite
+    (`metrics/general.json`): every seed, every controller, the planner and the best layout."""
+    cells = json.loads((ROOT / "metrics/general.json").read_text())["cells"]
+    over = []
+    for c in cells:
+        bound = c["baselines"]["upper_bound"]["coverage"]["mean"]
+        found = {name: b["coverage"]["mean"] for name, b in c["baselines"].items() if name != "upper_bound"}
+        found |= {seed: s["coverage"]["mean"] for seed, s in c["seeds"].items()}
+        over += [(c["region"], c["n_agents"], c["start"], c["event"], k) for k, v in found.items() if v > bound + 1e-9]
+    assert len(cells) == len(suite_cells(params)) and not over
