@@ -65,17 +65,17 @@ def one_limit(cells: list[dict]) -> list[dict]:
     cell's search also starts from its own policies' best final layout (``best_layout.best_coverage_from``), so
     the cells of one lake may have found different layouts; the limit of a lake and fleet is the best of them,
     whatever start or event a cell had (a layout has no physics)."""
+    def lake_and_fleet(c: dict) -> tuple:
+        return c["region"], c["n_agents"], c["baselines"]["best_layout"].get("buoys")
+
     best: dict[tuple, dict] = {}
     for c in cells:
-        layout = c["baselines"].get("best_layout")
-        if layout is not None:
-            key = (c["region"], c["n_agents"], layout.get("buoys"))
-            if key not in best or layout["coverage"]["mean"] > best[key]["coverage"]["mean"]:
-                best[key] = layout
-    return [c if "best_layout" not in c["baselines"] else
-            c | {"baselines": c["baselines"] | {"best_layout": best[(c["region"], c["n_agents"],
-                                                                     c["baselines"]["best_layout"].get("buoys"))]}}
-            for c in cells]
+        if "best_layout" in c["baselines"]:
+            layout = c["baselines"]["best_layout"]
+            best[lake_and_fleet(c)] = max(best.get(lake_and_fleet(c), layout), layout,
+                                          key=lambda b: b["coverage"]["mean"])  # the first of equals
+    return [c | {"baselines": c["baselines"] | {"best_layout": best[lake_and_fleet(c)]}}
+            if "best_layout" in c["baselines"] else c for c in cells]
 
 
 def still_ratios(cells: list[dict], seed: str) -> list[float]:
@@ -275,12 +275,15 @@ def share_table(params, cells: list[dict]) -> list[str]:
         label = "general policy (mean of its seeds)" if who == "policy" else who
         rows.append(f"| {label} | " + " | ".join("—" if v != v else f"{v:.3f}" for v in shares) + " |")
     every = [c for group in kinds.values() for c in group]
-    found = [c for c in every if c["baselines"]["best_layout"].get("from_policy", False)]
+    def from_policy(c: dict) -> bool:
+        return c["baselines"]["best_layout"].get("from_policy", False)
+
+    found = [c for c in every if from_policy(c)]
     narrow = narrow_cells(every, params.report.general)
     return ["Every controller as a share of the planner and of the best layout (mean over the cells of a kind, "
             "every start and event):", "", *rows, "",
             f"The search from the policies' best final layout gave the best layout of the lake and fleet in "
-            f"{len(found)} of {len(every)} cells; {sum(c in found for c in narrow)} of the {len(narrow)} cells of the "
+            f"{len(found)} of {len(every)} cells; {sum(map(from_policy, narrow))} of the {len(narrow)} cells of the "
             "bar on lakes where lloyd_tuned stops short of the best layout are among them (a layout the policy "
             "found can bring a cell into that bar)."]
 
