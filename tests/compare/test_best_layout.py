@@ -33,7 +33,8 @@ def test_scoring_within_reach_gives_the_whole_fleets_layout(params):
     import shapely
     from shapely.geometry import Polygon
 
-    from replicate.compare.best_layout import TIE, coverage_polygons, gains, greedy, local_search
+    from replicate.compare.best_layout import TIE, Candidates, coverage_polygons, gains, greedy, local_search
+    from replicate.world.geometry import polygon_offsets
 
     r, e = params.coverage.radius, params.coverage.edges
     lake = Polygon([(0, 0), (4, 0), (4, 1.5), (1.5, 1.5), (1.5, 4), (0, 4)], [[(0.5, 0.5), (0.9, 0.5), (0.9, 0.9)]])
@@ -47,7 +48,8 @@ def test_scoring_within_reach_gives_the_whole_fleets_layout(params):
         xy.append(grid[int(np.argmax(g >= g.max() - TIE))])
         cov = shapely.intersection(coverage_polygons(np.array(xy[-1:]), r, e)[0], lake)
         covered = cov if covered is None else shapely.union(covered, cov)
-    placed = greedy(lake, grid, 8, r, e)
+    clipped = shapely.intersection(coverage_polygons(grid, r, e), lake)
+    placed = greedy(Candidates(grid, shapely.area(clipped), clipped, None, polygon_offsets(r, e)), 8, r)
     np.testing.assert_array_equal(placed, np.array(xy))
 
     reference, step = placed.copy(), 0.1
@@ -92,7 +94,7 @@ def test_a_lake_hundreds_of_radii_across_gets_a_coarser_grid(monkeypatch):
 
     seen = []
     real_greedy = bl.greedy
-    monkeypatch.setattr(bl, "greedy", lambda region, grid, *a: seen.append(len(grid)) or real_greedy(region, grid, *a))
+    monkeypatch.setattr(bl, "greedy", lambda c, *a, **k: seen.append(len(c.grid)) or real_greedy(c, *a, **k))
     lake = box(0, 0, 60, 60)
     xy, coverage = bl.best_layout(lake, 9, 0.5, 30)
     assert max(seen) <= bl.MAX_CANDIDATES * 1.02
@@ -123,16 +125,20 @@ def test_lloyds_layout_is_a_start_of_the_search(params):
 def test_on_a_large_lake_the_layout_gathers_toward_the_fleet(params):
     """On a 20 × 20 m lake every full disc ties: greedy placement takes the first of them, or with ``toward`` the
     nearest to that point, and the three buoys' layout stays within a few radii of it at the same coverage."""
+    import shapely
     from shapely.geometry import box
 
-    from replicate.compare.best_layout import greedy
+    from replicate.compare.best_layout import Candidates, coverage_polygons, greedy
+    from replicate.world.geometry import polygon_offsets
 
     r, e = params.coverage.radius, params.coverage.edges
     lake = box(0, 0, 20, 20)
     gx, gy = np.meshgrid(np.arange(0, 20.01, 0.25), np.arange(0, 20.01, 0.25))
     grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
-    first = greedy(lake, grid, 3, r, e)
-    near = greedy(lake, grid, 3, r, e, toward=np.array([15.0, 12.0]))
+    clipped = shapely.intersection(coverage_polygons(grid, r, e), lake)
+    c = Candidates(grid, shapely.area(clipped), clipped, None, polygon_offsets(r, e))
+    first = greedy(c, 3, r)
+    near = greedy(c, 3, r, toward=np.array([15.0, 12.0]))
     assert np.linalg.norm(first - [15.0, 12.0], axis=1).min() > 10
     assert np.linalg.norm(near - [15.0, 12.0], axis=1).max() < 4 * r
     assert covered_area(lake, near, r, e) == pytest.approx(covered_area(lake, first, r, e))

@@ -10,7 +10,8 @@ import pytest
 
 from replicate.core.params import run_config
 from replicate.world.env import CoverageEnv, Pay
-from replicate.world.scenario import cr_weights, general_env, run_env
+from replicate.world.regions import region_from_file
+from replicate.world.scenario import cr_weights, general_env, grown_horizon, horizon, run_env
 from replicate.world.sensors import on_shore
 
 from ..conftest import ROOT
@@ -62,3 +63,15 @@ def test_the_scenario_sets_the_union_weight_and_pay_of_each_config(params, regio
     assert general.pay == Pay(gc.reward_scale, gc.shore_penalty) and general.wall
     assert general_env(params, gc, regions["square"], 5, 1, 0, reward=False).reward_kind is None
     assert cr_weights(params.cr_reward) == params.cr_reward
+
+
+@pytest.mark.parametrize("lake", ["mae_kuang_reservoir", "lake_silach", "lake_karaguz"])
+def test_a_real_lake_at_the_papers_area_gets_the_papers_horizon(params, lake):
+    """An outline scaled to the paper's 9 m² keeps a float sliver of its area (Mae Kuang 9.000000000000009 m²):
+    its episode is still T steps, not T + 1; a lake of four times the area gets 2T, one a hair above that 2T + 1."""
+    region = region_from_file(ROOT / "data" / "lakes" / f"{lake}.geojson", area=params.world.region_area)
+    t, area = params.general.episode_length, params.world.region_area
+    assert horizon(params.general, region, area) == t
+    assert grown_horizon(t, 4 * area, area) == 2 * t
+    assert grown_horizon(t, 4 * area * (1 + 1e-6), area) == 2 * t + 1
+    assert grown_horizon(t, area / 4, area) == t  # never below T

@@ -21,6 +21,8 @@ from shapely.geometry import Polygon
 from replicate.core.studies import LloydConfig, NaiveConfig
 from replicate.world.env import CoverageEnv
 from replicate.world.geodesic import geodesic_targets, water_graph
+from replicate.world.geometry import long_shore
+from replicate.world.local_water import Rings
 
 Policy = Callable[[CoverageEnv], np.ndarray]
 
@@ -97,6 +99,7 @@ def naive_swarming(cfg: NaiveConfig) -> Policy:
 
 SEPARATION = 1e-6  # m: how far apart ``separate_coincident`` sets buoys that share a point, for the diagram only
 COINCIDENT = 1e-9  # m: buoys closer than this share a point (GEOS fails on sites 1e-15 apart as on equal ones)
+SLIVER = 1e-12  # a cell's clipped area below this share of its own holds no water (the clipping's rounding)
 
 
 def separate_coincident(xy: np.ndarray, water: Polygon, eps: float = SEPARATION) -> np.ndarray:
@@ -140,12 +143,15 @@ def voronoi_centroids(region: Polygon, xy: np.ndarray) -> np.ndarray:
         parts, owner = shapely.get_parts(diagrams, return_index=True)
         proper = np.bincount(owner, minlength=len(diagrams)) == n  # a diagram with a cell per agent
         cells = parts[proper[owner]]  # the proper environments' cells, n each, in agent order
-    clipped = shapely.intersection(cells, region).reshape(-1, n)  # [E', N]
-    coords, which = shapely.get_coordinates(shapely.centroid(clipped).ravel(), return_index=True)
-    target = np.full((*clipped.shape, 2), np.nan)  # [E', N, 2], NaN where a cell has no centroid
-    target.reshape(-1, 2)[which] = coords
-    empty = shapely.is_empty(clipped)
-    no_centroid = (np.isnan(target).any(axis=-1) & ~empty).any(axis=1, keepdims=True)  # degenerate clipping
+    if long_shore(region) and n > 1:  # convex cells (one buoy's cell is the whole lake)
+        target, empty, no_centroid = water_centroids(region, cells, n)
+    else:
+        clipped = shapely.intersection(cells, region).reshape(-1, n)  # [E', N]
+        coords, which = shapely.get_coordinates(shapely.centroid(clipped).ravel(), return_index=True)
+        target = np.full((*clipped.shape, 2), np.nan)  # [E', N, 2], NaN where a cell has no centroid
+        target.reshape(-1, 2)[which] = coords
+        empty = shapely.is_empty(clipped)
+        no_centroid = (np.isnan(target).any(axis=-1) & ~empty).any(axis=1, keepdims=True)  # degenerate clipping
     out = np.empty((e, n, 2))
     out[proper] = target
     nearest = np.ones((e, n), bool)
@@ -153,6 +159,34 @@ def voronoi_centroids(region: Polygon, xy: np.ndarray) -> np.ndarray:
     if nearest.any():
         out[nearest] = nearest_in(region, batch[nearest])
     return out[0] if xy.ndim == 2 else out
+
+
+def water_centroids(region: Polygon, cells: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``voronoi_centroids``' clipping on a long shore (``geometry.long_shore``): each convex cell [E' · N] against
+    the region's rings in a compiled loop (``local_water``), the same centroids as shapely's to float rounding →
+    (centroids [E', N, 2], cells without water [E', N], environments with a degenerate clipping [E', 1]). A cell
+    whose water is a line, a point or under ``SLIVER`` of its area counts as dry (shapely's clipping would give
+    the centroid of the line or sliver): its buoy heads for the nearest water."""
+    if len(cells) == 0:  # no environment's diagram could be built
+        return np.zeros((0, n, 2)), np.zeros((0, n), bool), np.zeros((0, 1), bool)
+    coords, which = shapely.get_coordinates(cells, return_index=True)
+    count = np.bincount(which, minlength=len(cells))
+    # each cell's ring (closed) padded with its last vertex: a zero-length edge clips nothing
+    slot = np.arange(len(coords)) - np.repeat(np.cumsum(count) - count, count)
+    clips = np.repeat(coords[np.cumsum(count) - 1][:, None], count.max(), axis=1)
+    clips[which, slot] = coords
+    area, mx, my = region_rings(region.wkb).moments(clips).T
+    empty = (area <= SLIVER * shapely.area(cells)).reshape(-1, n)  # float noise of a cell off the water is no water
+    with np.errstate(invalid="ignore", divide="ignore"):
+        target = np.stack([mx / area, my / area], axis=-1).reshape(-1, n, 2)
+    no_centroid = (np.isnan(target).any(axis=-1) & ~empty).any(axis=1, keepdims=True)
+    return target, empty, no_centroid
+
+
+@functools.lru_cache(maxsize=16)
+def region_rings(region_wkb: bytes) -> Rings:
+    """The rings of a region (``local_water.Rings``), once per region in a process."""
+    return Rings.of([shapely.from_wkb(region_wkb)])
 
 
 def lloyd(cfg: LloydConfig) -> Policy:

@@ -17,12 +17,15 @@ reach of a change scored again (the same areas, 4-6x faster than scoring the who
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
 from replicate.compare.baselines import nearest_in, voronoi_centroids
+from replicate.world.geometry import long_shore, polygon_offsets
+from replicate.world.local_water import LocalWater, Rings
 
 TIE = 1e-9  # gains (m²) or coverages closer than this are equal: the same water scored through other overlays
 # the candidate grid's origin, in grid spacings: the search ends in another local optimum from each. On 6 suite
@@ -63,24 +66,70 @@ def near(xy: np.ndarray, centre: np.ndarray, reach: float) -> np.ndarray:
     return np.all(np.abs(xy - centre) <= reach, axis=1)
 
 
-def greedy(region: Polygon, grid: np.ndarray, n_agents: int, radius: float, edges: int,
-           toward: np.ndarray | None = None) -> np.ndarray:
-    """Each buoy in turn on the grid point [G, 2] whose polygon adds the most water not yet covered → [N, 2]; among
-    points that add as much, the first, or the nearest to ``toward`` [2] (on a lake far larger than the fleet's
-    reach every full disc ties, and the layout then gathers where the fleet is). Every candidate is clipped to the
-    water once; after a placement only the candidates within reach of it are scored again (the others' gains
-    cannot change)."""
-    clipped = shapely.intersection(coverage_polygons(grid, radius, edges), region)
-    score = shapely.area(clipped)
-    far = None if toward is None else np.linalg.norm(grid - toward, axis=1)
+@dataclass(frozen=True)
+class Candidates:
+    """The candidate grid of a search: its points in the water, shore included [G, 2], and the water each one's
+    coverage polygon holds [G]. On a short shore every polygon is clipped to the water once (``clipped`` [G]); on
+    a long one (``geometry.long_shore``) a compiled loop measures the water (``local_water``) and a polygon is
+    clipped, against its tile's water, only when a buoy is placed on it."""
+
+    grid: np.ndarray
+    water: np.ndarray
+    clipped: np.ndarray | None
+    local: LocalWater | None
+    offsets: np.ndarray  # [K, 2] the coverage polygon's vertices about its centre
+
+    @classmethod
+    def of(cls, region: Polygon, spacing: float, offset: tuple[float, float], radius: float, edges: int,
+           local: LocalWater | None = None) -> Candidates:
+        """The grid of spacing ``spacing`` shifted by ``offset`` (in spacings) over ``region``; ``local`` its
+        tiles on a long shore (None: shapely's overlay)."""
+        minx, miny, maxx, maxy = region.bounds
+        gx, gy = np.meshgrid(np.arange(minx + offset[0] * spacing, maxx + spacing, spacing),
+                             np.arange(miny + offset[1] * spacing, maxy + spacing, spacing))
+        grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        grid = grid[shapely.intersects_xy(region, grid[:, 0], grid[:, 1])]  # in the water, shore included
+        offsets = polygon_offsets(radius, edges)
+        if local is not None:
+            return cls(grid, local.overlap_areas(grid, offsets), None, local, offsets)
+        clipped = shapely.intersection(coverage_polygons(grid, radius, edges), region)
+        return cls(grid, shapely.area(clipped), clipped, None, offsets)
+
+    def placed(self, i: int):
+        """Candidate ``i``'s coverage polygon clipped to the water (a geometry)."""
+        if self.clipped is not None:
+            return self.clipped[i]
+        return self.local.clip(shapely.polygons(self.grid[i:i + 1, None] + self.offsets), self.grid[i:i + 1])[0]
+
+    def added(self, touched: np.ndarray, covered) -> np.ndarray:
+        """Water the candidates ``touched`` [G] bool would add to ``covered`` (a geometry in the water) → [T]:
+        A(K ∩ Reg ∖ C) = A(K ∩ Reg) − A(K ∩ C) on a long shore, C being in the region."""
+        if self.clipped is not None:
+            return added(self.clipped[touched], covered)
+        grid = self.grid[touched]
+        gain = self.water[touched] - Rings.of([covered]).moments(grid[:, None] + self.offsets)[:, 0]
+        lost = np.isnan(gain)
+        if lost.any():  # a clip too long for the loop's buffers: shapely's difference
+            polygons = shapely.polygons(grid[lost, None] + self.offsets)
+            gain[lost] = added(self.local.clip(polygons, grid[lost]), covered)
+        return gain
+
+
+def greedy(c: Candidates, n_agents: int, radius: float, toward: np.ndarray | None = None) -> np.ndarray:
+    """Each buoy in turn on the candidate point of ``c`` whose polygon adds the most water not yet covered
+    → [N, 2]; among points that add as much, the first, or the nearest to ``toward`` [2] (on a lake far larger
+    than the fleet's reach every full disc ties, and the layout then gathers where the fleet is). After a
+    placement only the candidates within reach of it are scored again (the others' gains cannot change)."""
+    score = c.water.copy()
+    far = None if toward is None else np.linalg.norm(c.grid - toward, axis=1)
     xy, covered = [], None
     for _ in range(n_agents):
         ties = score >= score.max() - TIE  # float noise breaks no tie
         best = int(np.argmax(ties)) if far is None else int(np.flatnonzero(ties)[np.argmin(far[ties])])
-        xy.append(grid[best])
-        covered = clipped[best] if covered is None else shapely.union(covered, clipped[best])
-        touched = near(grid, grid[best], 2 * radius)
-        score[touched] = added(clipped[touched], covered)
+        xy.append(c.grid[best])
+        covered = c.placed(best) if covered is None else shapely.union(covered, c.placed(best))
+        touched = near(c.grid, c.grid[best], 2 * radius)
+        score[touched] = c.added(touched, covered)
     return np.array(xy)
 
 
@@ -145,16 +194,13 @@ def best_layout(region: Polygon, n_agents: int, radius: float, edges: int, spaci
     placement's ties toward that point (``greedy``). ``spacing`` of the grid defaults to a
     tenth of the radius, coarser where that grid would hold more than ``MAX_CANDIDATES`` points (a lake hundreds of
     radii across: the local search still refines every position down to ``tolerance``)."""
-    minx, miny, maxx, maxy = region.bounds
     spacing = grid_spacing(region, radius) if spacing is None else spacing
     shapely.prepare(region)
     starts = []
-    for dx, dy in GRID_OFFSETS[:1] if quick else GRID_OFFSETS:
-        gx, gy = np.meshgrid(np.arange(minx + dx * spacing, maxx + spacing, spacing),
-                             np.arange(miny + dy * spacing, maxy + spacing, spacing))
-        grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
-        grid = grid[shapely.intersects_xy(region, grid[:, 0], grid[:, 1])]  # in the water, shore included
-        starts.append(greedy(region, grid, n_agents, radius, edges, None if toward is None else np.asarray(toward)))
+    local = LocalWater.of(region, radius) if long_shore(region) else None
+    for offset in GRID_OFFSETS[:1] if quick else GRID_OFFSETS:
+        c = Candidates.of(region, spacing, offset, radius, edges, local)
+        starts.append(greedy(c, n_agents, radius, None if toward is None else np.asarray(toward)))
     if not quick:
         starts.append(lloyd_layout(region, starts[0]))
     best = (None, -1.0)
