@@ -11,7 +11,9 @@ layout the fleet found may lie in a basin none of the five searches enters. Ever
 water (the region, shore included): a buoy behind the shore wall cannot sail onto a spit of land between two arms,
 so a layout with a buoy there is not one a fleet could take. Every score is exact:
 A(∪Cov ∩ Reg) by shapely, vectorised over the candidates, with only the candidates, neighbours and water within
-reach of a change scored again (the same areas, 4-6x faster than scoring the whole fleet and lake).
+reach of a change scored again (the same areas, 4-6x faster than scoring the whole fleet and lake); on a long shore
+the candidates' water is clipped in the compiled loop of ``local_water`` (the same areas to float rounding, and on
+Mae Kuang and Lake Silach the same layouts).
 """
 
 from __future__ import annotations
