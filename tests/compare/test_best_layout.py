@@ -33,8 +33,8 @@ def test_scoring_within_reach_gives_the_whole_fleets_layout(params):
     import shapely
     from shapely.geometry import Polygon
 
-    from replicate.compare.best_layout import TIE, Candidates, coverage_polygons, gains, greedy, local_search
-    from replicate.world.geometry import polygon_offsets
+    from replicate.compare.best_layout import TIE, Candidates, gains, greedy, local_search
+    from replicate.world.geometry import coverage_polygons, polygon_offsets
 
     r, e = params.coverage.radius, params.coverage.edges
     lake = Polygon([(0, 0), (4, 0), (4, 1.5), (1.5, 1.5), (1.5, 4), (0, 4)], [[(0.5, 0.5), (0.9, 0.5), (0.9, 0.9)]])
@@ -128,8 +128,8 @@ def test_on_a_large_lake_the_layout_gathers_toward_the_fleet(params):
     import shapely
     from shapely.geometry import box
 
-    from replicate.compare.best_layout import Candidates, coverage_polygons, greedy
-    from replicate.world.geometry import polygon_offsets
+    from replicate.compare.best_layout import Candidates, greedy
+    from replicate.world.geometry import coverage_polygons, polygon_offsets
 
     r, e = params.coverage.radius, params.coverage.edges
     lake = box(0, 0, 20, 20)
@@ -142,6 +142,28 @@ def test_on_a_large_lake_the_layout_gathers_toward_the_fleet(params):
     assert np.linalg.norm(first - [15.0, 12.0], axis=1).min() > 10
     assert np.linalg.norm(near - [15.0, 12.0], axis=1).max() < 4 * r
     assert covered_area(lake, near, r, e) == pytest.approx(covered_area(lake, first, r, e))
+
+
+def test_a_large_grid_clips_each_polygon_when_scored_to_the_same_numbers(params, regions, monkeypatch):
+    """A grid of more than ``KEPT_CLIPS`` points keeps only its polygons' water and clips a polygon again when it
+    is scored (``replicate plan`` at a field radius held 1.3 GB with every clip kept): the same water, the same
+    greedy layout and the same search, bit for bit, as with every clip kept, on Bedok at N = 9."""
+    import shapely
+
+    from replicate.compare import best_layout as module
+
+    r, e, bedok = params.coverage.radius, params.coverage.edges, regions["bedok"].polygon
+    shapely.prepare(bedok)
+    kept = module.Candidates.of(bedok, r / 10, (0.5, 0.5), r, e)
+    layout, coverage = best_layout(bedok, 9, r, e, quick=True)
+    monkeypatch.setattr(module, "KEPT_CLIPS", 1000)  # Bedok's grid holds several thousand points: parts of 1,000
+    clipped = module.Candidates.of(bedok, r / 10, (0.5, 0.5), r, e)
+    assert kept.clipped is not None and clipped.clipped is None and len(clipped.grid) > 3 * 1000
+    np.testing.assert_array_equal(clipped.water, kept.water)
+    np.testing.assert_array_equal(module.greedy(clipped, 9, r), module.greedy(kept, 9, r))
+    again, same = best_layout(bedok, 9, r, e, quick=True)
+    np.testing.assert_array_equal(again, layout)
+    assert same == coverage
 
 
 def test_a_policys_final_layout_is_a_start_of_the_search(params, monkeypatch):

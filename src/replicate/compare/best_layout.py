@@ -26,7 +26,7 @@ import shapely
 from shapely.geometry import Polygon
 
 from replicate.compare.baselines import nearest_in, voronoi_centroids
-from replicate.world.geometry import long_shore, polygon_offsets
+from replicate.world.geometry import coverage_polygons, long_shore, polygon_offsets
 from replicate.world.local_water import LocalWater, Rings
 
 TIE = 1e-9  # gains (m²) or coverages closer than this are equal: the same water scored through other overlays
@@ -37,14 +37,11 @@ GRID_OFFSETS = ((0.0, 0.0), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25))
 # their tenth-of-a-radius grids; a real lake at a 25 m radius (100+ radii across) gets a coarser grid
 MAX_CANDIDATES = 200_000
 LLOYD_ITERATIONS = 200  # Lloyd's layout: at most this many centroid steps (the suite's lakes converge in far fewer)
-
-
-def coverage_polygons(xy: np.ndarray, radius: float, edges: int) -> np.ndarray:
-    """The coverage polygon (regular ``edges``-gon of circumradius ``radius``, as ``geometry``) at each point
-    [M, 2] → [M] shapely polygons."""
-    angle = 2 * np.pi * np.arange(edges) / edges
-    ring = radius * np.stack([np.cos(angle), np.sin(angle)], axis=1)
-    return shapely.polygons(xy[:, None, :] + ring[None])
+# candidate polygons clipped to the water once and kept (about 1 KB each): every grid of the suite's lakes. A larger
+# grid (a real lake at a field radius: up to MAX_CANDIDATES points) keeps only their areas and clips a polygon
+# again when it is scored, the same polygon and the same numbers: `replicate plan` on Lake Karaguz at 25 m held
+# 1.3 GB with every clip kept
+KEPT_CLIPS = 20_000
 
 
 def covered_area(region: Polygon, xy: np.ndarray, radius: float, edges: int) -> float:
@@ -71,8 +68,9 @@ def near(xy: np.ndarray, centre: np.ndarray, reach: float) -> np.ndarray:
 @dataclass(frozen=True)
 class Candidates:
     """The candidate grid of a search: its points in the water, shore included [G, 2], and the water each one's
-    coverage polygon holds [G]. On a short shore every polygon is clipped to the water once (``clipped`` [G]); on
-    a long one (``geometry.long_shore``) a compiled loop measures the water (``local_water``) and a polygon is
+    coverage polygon holds [G]. On a short shore each polygon is clipped to the water by shapely, once and kept
+    (``clipped`` [G]) on a grid of at most ``KEPT_CLIPS`` points, again whenever it is scored on a larger one; on a
+    long one (``geometry.long_shore``) a compiled loop measures the water (``local_water``) and a polygon is
     clipped, against its tile's water, only when a buoy is placed on it."""
 
     grid: np.ndarray
@@ -80,6 +78,7 @@ class Candidates:
     clipped: np.ndarray | None
     local: LocalWater | None
     offsets: np.ndarray  # [K, 2] the coverage polygon's vertices about its centre
+    region: Polygon | None = None  # the water, where a short shore's clips are not kept
 
     @classmethod
     def of(cls, region: Polygon, spacing: float, offset: tuple[float, float], radius: float, edges: int,
@@ -94,20 +93,32 @@ class Candidates:
         offsets = polygon_offsets(radius, edges)
         if local is not None:
             return cls(grid, local.overlap_areas(grid, offsets), None, local, offsets)
-        clipped = shapely.intersection(coverage_polygons(grid, radius, edges), region)
-        return cls(grid, shapely.area(clipped), clipped, None, offsets)
+        if len(grid) <= KEPT_CLIPS:
+            clipped = shapely.intersection(coverage_polygons(grid, radius, edges), region)
+            return cls(grid, shapely.area(clipped), clipped, None, offsets)
+        parts = np.array_split(grid, -(-len(grid) // KEPT_CLIPS))  # a part's clips at a time
+        water = np.concatenate([shapely.area(shapely.intersection(shapely.polygons(part[:, None] + offsets),
+                                                                  region)) for part in parts])
+        return cls(grid, water, None, None, offsets, region)
+
+    def clips(self, chosen: np.ndarray):
+        """The coverage polygons of candidates ``chosen`` (indices or a mask [G]) clipped to the water → [C]
+        geometries (a short shore's)."""
+        if self.clipped is not None:
+            return self.clipped[chosen]
+        return shapely.intersection(shapely.polygons(self.grid[chosen][:, None] + self.offsets), self.region)
 
     def placed(self, i: int):
         """Candidate ``i``'s coverage polygon clipped to the water (a geometry)."""
-        if self.clipped is not None:
-            return self.clipped[i]
+        if self.local is None:
+            return self.clips(np.array([i]))[0]
         return self.local.clip(shapely.polygons(self.grid[i:i + 1, None] + self.offsets), self.grid[i:i + 1])[0]
 
     def added(self, touched: np.ndarray, covered) -> np.ndarray:
         """Water the candidates ``touched`` [G] bool would add to ``covered`` (a geometry in the water) → [T]:
         A(K ∩ Reg ∖ C) = A(K ∩ Reg) − A(K ∩ C) on a long shore, C being in the region."""
-        if self.clipped is not None:
-            return added(self.clipped[touched], covered)
+        if self.local is None:
+            return added(self.clips(touched), covered)
         grid = self.grid[touched]
         gain = self.water[touched] - Rings.of([covered]).moments(grid[:, None] + self.offsets)[:, 0]
         lost = np.isnan(gain)
