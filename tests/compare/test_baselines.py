@@ -65,16 +65,36 @@ def test_agents_at_one_point_split_its_cell_and_steer_apart(regions):
     assert np.isfinite(baselines.voronoi_centroids(regions["square"].polygon, corner)).all()
 
 
-def test_naive_interior_falls_back_to_the_middle_of_a_lake_too_shallow_for_a_coverage_polygon():
-    """Naive swarming's target is Reg ⊖ Cov; a lake whose deepest point is closer to the shore than R has none,
-    and its target is then the water at least half that depth from the shore: non-empty, inside, off the shore."""
+def test_naive_interior_falls_back_to_the_middle_of_a_lake_too_shallow_for_a_coverage_polygon(params, regions):
+    """Naive swarming's target is Reg ⊖ Cov, the fast path's eroded lake, without building the fast path; a lake
+    whose deepest point is closer to the shore than R has none, and its target is then the water at least half
+    that depth from the shore: non-empty, inside, off the shore."""
     from shapely.geometry import box
 
-    square = box(-1.5, -1.5, 1.5, 1.5)
-    assert baselines.interior(square, square.buffer(-0.5)).equals(square.buffer(-0.5))
+    from replicate.world.geometry import CoverageGeometry
+
+    c = params.coverage
+    for name in ("square", "bedok"):
+        region = regions[name].polygon
+        fast = CoverageGeometry(region, c.radius, c.edges, c.table_spacing, c.raster_spacing)
+        assert shapely.equals_exact(baselines.interior(region, c.radius, c.edges), fast.eroded, 0)
     narrow = box(0.0, 0.0, 9.0, 0.8)  # deepest point 0.4 m from the shore, R = 0.5 m
-    eroded = narrow.buffer(-0.5)
-    assert eroded.is_empty
-    middle = baselines.interior(narrow, eroded)
+    assert narrow.buffer(-0.5).is_empty
+    middle = baselines.interior(narrow, c.radius, c.edges)
     assert not middle.is_empty and narrow.contains(middle)
     assert middle.exterior.distance(narrow.exterior) == pytest.approx(0.2)
+
+
+def test_naive_swarming_steers_on_a_lake_too_large_for_the_fast_paths_tables(params):
+    """A lake 400 coverage radii across (a field radius on a real lake: ``replicate cover --radius-m 25`` on Lake
+    Karaguz) has no room for the fast path's area table, which an evaluation never needs: naive swarming steers
+    there without building it."""
+    from replicate.world.env import CoverageEnv
+    from replicate.world.regions import box_region
+
+    lake = box_region("wide", 200.0, 200.0)
+    env = CoverageEnv(lake, params.world, params.coverage, n_envs=2, seed=0)
+    env.reset()
+    action = baselines.naive_swarming(params.evaluate.naive)(env)
+    assert action.shape == (2, params.world.n_agents, 2) and np.isfinite(action).all()
+    assert env._geometry is None

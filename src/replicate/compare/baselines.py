@@ -21,7 +21,7 @@ from shapely.geometry import Polygon
 from replicate.core.studies import LloydConfig, NaiveConfig
 from replicate.world.env import CoverageEnv
 from replicate.world.geodesic import geodesic_targets, water_graph
-from replicate.world.geometry import long_shore
+from replicate.world.geometry import long_shore, minkowski, polygon_offsets
 from replicate.world.local_water import Rings
 
 Policy = Callable[[CoverageEnv], np.ndarray]
@@ -64,12 +64,21 @@ def _middle(region_wkb: bytes) -> Polygon:
     return region.buffer(-0.5 * depth)
 
 
-def interior(region: Polygon, eroded: Polygon) -> Polygon:
-    """Naive swarming's target: the interior Reg ⊖ Cov, where a buoy's coverage polygon fits in the water. Where
+@functools.lru_cache(maxsize=64)
+def _interior(region_wkb: bytes, radius: float, edges: int) -> Polygon:
+    region = shapely.from_wkb(region_wkb)
+    eroded = minkowski(region, polygon_offsets(radius, edges))[0]
+    return eroded if not eroded.is_empty else _middle(region_wkb)
+
+
+def interior(region: Polygon, radius: float, edges: int) -> Polygon:
+    """Naive swarming's target: the interior Reg ⊖ Cov, where a buoy's coverage polygon (``edges``-gon of
+    circumradius ``radius``) fits in the water, the polygon the environment's fast path erodes the lake to. Where
     the lake is nowhere that deep (its deepest point closer to the shore than R, so Reg ⊖ Cov is empty), the
     water at least half the deepest point's depth from the shore: a non-empty middle of the lake, never the
-    whole lake (which would leave buoys on the shore with no pull at all)."""
-    return eroded if not eroded.is_empty else _middle(region.wkb)
+    whole lake (which would leave buoys on the shore with no pull at all). Computed once per lake, without the
+    fast path's area table and raster, which a lake hundreds of radii across cannot hold."""
+    return _interior(region.wkb, float(radius), int(edges))
 
 
 def naive_swarming(cfg: NaiveConfig) -> Policy:
@@ -78,7 +87,7 @@ def naive_swarming(cfg: NaiveConfig) -> Policy:
     damping."""
 
     def steer(env: CoverageEnv, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
-        target_region = interior(env.region.polygon, env.geometry.eroded)
+        target_region = interior(env.region.polygon, env.coverage.radius, env.coverage.edges)
         flat = pos.reshape(-1, 2)
         outside = ~shapely.contains_xy(target_region, flat[:, 0], flat[:, 1])
         attract = np.zeros_like(flat)

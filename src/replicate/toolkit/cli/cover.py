@@ -125,6 +125,12 @@ def check_cover_args(args: argparse.Namespace, params: Params) -> None:
         outline_path(args.region)  # before the output folder is made
 
 
+def share(fraction: float) -> str:
+    """A share of the lake as a field team reads it: a percentage to three significant digits (nine 25 m buoys on
+    a 5 km² lake cover 0.322 %, which three decimals of a fraction would print as 0.003)."""
+    return f"{100 * fraction:.3g} %"
+
+
 def print_cover(args: argparse.Namespace, s: dict, out: Path) -> None:
     """The summary of a `cover` run, as the user reads it."""
     cov, lloyd = s["coverage"], s["lloyd_coverage"]
@@ -136,10 +142,11 @@ def print_cover(args: argparse.Namespace, s: dict, out: Path) -> None:
     if args.method == "general":
         best = s["baselines"]["best_layout"]["coverage"]["mean"]
         lloyd_name = "tuned Lloyd" if s["lloyd_baseline"] == "lloyd_tuned" else "Lloyd"
-        print(f"general policy{' fine-tuned' if args.finetune else ', zero-shot'}: coverage {cov['mean']:.3f} "
-              f"(95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over evaluation episodes) vs {lloyd_name} {lloyd['mean']:.3f} "
-              f"({s['ratio_to_lloyd']:.0%}) and the best layout {best:.3f} ({s['ratio_to_best']:.0%}); "
-              f"no buoy left the water by more than {s['max_outside_m']:.3g} m; wrote {out}/")
+        print(f"general policy{' fine-tuned' if args.finetune else ', zero-shot'}: coverage {share(cov['mean'])} of "
+              f"the lake (95 % CI {share(cov['lo'])}-{share(cov['hi'])} over evaluation episodes) vs {lloyd_name} "
+              f"{share(lloyd['mean'])} ({s['ratio_to_lloyd']:.0%}) and the best layout {share(best)} "
+              f"({s['ratio_to_best']:.0%}); no buoy left the water by more than {s['max_outside_m']:.3g} m; "
+              f"wrote {out}/")
         return
     print(f"coverage {cov['mean']:.3f} (95 % CI {cov['lo']:.3f}-{cov['hi']:.3f} over evaluation episodes of this one "
           f"trained policy; another training seed can land outside it) vs Lloyd {lloyd['mean']:.3f}: "
