@@ -1,10 +1,10 @@
 """Section 7 of `make bench`: what a field team waits for. The start-up of `replicate --help` (best of 5 fresh
 processes), the per-step latency of `replicate act --stream --real` once it has started (a general policy exported
-for 25 m buoys at 1 m/s, 9 buoys, 2,000 steps through a pipe, one step answered before the next is sent), and the
-wall time and peak memory of `replicate plan` on Lake Karaguz (9 buoys of 25 m at 1 m/s, the whole default mission; 1 GB)
-and of `replicate evaluate --policy` on each real lake of `data/lakes/` (100 episodes of the policy, naive swarming
-and Lloyd, the best layout, and the episode written for a GIS; the targets are 30 s and 1 GB) and on a generated
-4,000-vertex lake with arms and islands (60 s)."""
+for 25 m buoys at 1 m/s, 9 buoys, 2,000 steps through a pipe, one step answered before the next is sent), the wall
+time and peak memory of `replicate plan` on Lake Karaguz (9 buoys of 25 m at 1 m/s, the whole default mission;
+target 1 GB), and those of `replicate evaluate --policy` on each real lake of `data/lakes/` (100 episodes of the
+policy, naive swarming and Lloyd, the best layout, and the episode written for a GIS; the targets are 30 s and
+1 GB) and on a generated 4,000-vertex lake with arms and islands (60 s)."""
 
 from __future__ import annotations
 
