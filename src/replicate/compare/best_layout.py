@@ -39,8 +39,8 @@ MAX_CANDIDATES = 200_000
 LLOYD_ITERATIONS = 200  # Lloyd's layout: at most this many centroid steps (the suite's lakes converge in far fewer)
 # candidate polygons clipped to the water once and kept (about 1 KB each): every grid of the suite's lakes. A larger
 # grid (a real lake at a field radius: up to MAX_CANDIDATES points) keeps only their areas and clips a polygon
-# again when it is scored, the same polygon and the same numbers: `replicate plan` on Lake Karaguz at 25 m held
-# 1.3 GB with every clip kept
+# again when it is scored, the same polygon and the same numbers: `replicate plan` on Lake Karaguz at 25 m peaked at
+# 1,048 MB with every clip kept, 865 MB so (benchmarks/field_bench.py)
 KEPT_CLIPS = 20_000
 
 
