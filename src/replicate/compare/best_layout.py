@@ -97,22 +97,26 @@ class Candidates:
             clipped = shapely.intersection(coverage_polygons(grid, radius, edges), region)
             return cls(grid, shapely.area(clipped), clipped, None, offsets)
         parts = np.array_split(grid, -(-len(grid) // KEPT_CLIPS))  # a part's clips at a time
-        water = np.concatenate([shapely.area(shapely.intersection(shapely.polygons(part[:, None] + offsets),
-                                                                  region)) for part in parts])
+        water = np.concatenate([shapely.area(shapely.intersection(coverage_polygons(part, radius, edges), region))
+                                for part in parts])
         return cls(grid, water, None, None, offsets, region)
 
-    def clips(self, chosen: np.ndarray):
-        """The coverage polygons of candidates ``chosen`` (indices or a mask [G]) clipped to the water → [C]
-        geometries (a short shore's)."""
+    def polygons(self, chosen) -> np.ndarray:
+        """The coverage polygons of candidates ``chosen`` (indices, a slice or a mask [G]) → [C], unclipped."""
+        return shapely.polygons(self.grid[chosen][:, None] + self.offsets)
+
+    def clips(self, chosen) -> np.ndarray:
+        """The coverage polygons of candidates ``chosen`` clipped to the water → [C] geometries (a short shore's)."""
         if self.clipped is not None:
             return self.clipped[chosen]
-        return shapely.intersection(shapely.polygons(self.grid[chosen][:, None] + self.offsets), self.region)
+        return shapely.intersection(self.polygons(chosen), self.region)
 
     def placed(self, i: int):
         """Candidate ``i``'s coverage polygon clipped to the water (a geometry)."""
+        one = slice(i, i + 1)
         if self.local is None:
-            return self.clips(np.array([i]))[0]
-        return self.local.clip(shapely.polygons(self.grid[i:i + 1, None] + self.offsets), self.grid[i:i + 1])[0]
+            return self.clips(one)[0]
+        return self.local.clip(self.polygons(one), self.grid[one])[0]
 
     def added(self, touched: np.ndarray, covered) -> np.ndarray:
         """Water the candidates ``touched`` [G] bool would add to ``covered`` (a geometry in the water) → [T]:

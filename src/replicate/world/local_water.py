@@ -154,22 +154,26 @@ def clipped_moments(clips, lo, hi, xy, start, sign):  # pragma: no cover
     a, b = np.empty((size, 2)), np.empty((size, 2))
     out = np.zeros((m, 3))
     for p in range(m):
-        clip = clips[p] - clips[p, 0]  # about the polygon's first vertex
+        ox, oy = clips[p, 0, 0], clips[p, 0, 1]  # the polygon's first vertex: every coordinate is taken about it
         twice = 0.0  # the polygon's orientation: its inside is left of its edges when counter-clockwise
         for e in range(k):
-            twice += clip[e, 0] * clip[(e + 1) % k, 1] - clip[(e + 1) % k, 0] * clip[e, 1]
+            f = (e + 1) % k
+            twice += (clips[p, e, 0] - ox) * (clips[p, f, 1] - oy) - (clips[p, f, 0] - ox) * (clips[p, e, 1] - oy)
         turn = 1.0 if twice >= 0 else -1.0
         area, mx, my, overflow = 0.0, 0.0, 0.0, False
         for r in range(lo[p], hi[p]):
             n = start[r + 1] - start[r] - 1  # the closing vertex is not repeated in the work buffer
-            a[:n] = xy[start[r]:start[r] + n] - clips[p, 0]
+            for v in range(n):
+                a[v, 0], a[v, 1] = xy[start[r] + v, 0] - ox, xy[start[r] + v, 1] - oy
             for e in range(k):
                 if n == 0:
                     break
                 if 2 * n > size:  # this clip could write past the buffers
                     overflow = True
                     break
-                n = half_plane(a, n, b, clip[e], clip[(e + 1) % k] - clip[e], turn)
+                c0x, c0y = clips[p, e, 0] - ox, clips[p, e, 1] - oy
+                f = (e + 1) % k
+                n = half_plane(a, n, b, c0x, c0y, clips[p, f, 0] - ox - c0x, clips[p, f, 1] - oy - c0y, turn)
                 a, b = b, a
             if overflow:
                 break
@@ -180,20 +184,21 @@ def clipped_moments(clips, lo, hi, xy, start, sign):  # pragma: no cover
         if overflow:
             out[p, 0], out[p, 1], out[p, 2] = np.nan, np.nan, np.nan
         else:  # ∫x over the region about the first vertex o = ∫(x − o) + o·A
-            out[p, 0], out[p, 1], out[p, 2] = area, mx + clips[p, 0, 0] * area, my + clips[p, 0, 1] * area
+            out[p, 0], out[p, 1], out[p, 2] = area, mx + ox * area, my + oy * area
     return out
 
 
 @njit(cache=True)
-def half_plane(a, n, b, c0, edge, turn):  # pragma: no cover
-    """The polygon a[:n] [n, 2] clipped to the half-plane left of the line through c0 [2] along ``edge`` [2] (right
-    of it when ``turn`` is -1), written into b → its vertex count."""
+def half_plane(a, n, b, c0x, c0y, ex, ey, turn):  # pragma: no cover
+    """The polygon a[:n] [n, 2] clipped to the half-plane left of the line through (c0x, c0y) along (ex, ey) (right
+    of it when ``turn`` is -1), written into b → its vertex count. Scalars, not arrays: the loop that calls it once
+    per polygon edge allocates nothing."""
     count = 0
     sx, sy = a[n - 1, 0], a[n - 1, 1]
-    s_side = turn * (edge[0] * (sy - c0[1]) - edge[1] * (sx - c0[0]))
+    s_side = turn * (ex * (sy - c0y) - ey * (sx - c0x))
     for v in range(n):
         qx, qy = a[v, 0], a[v, 1]
-        q_side = turn * (edge[0] * (qy - c0[1]) - edge[1] * (qx - c0[0]))
+        q_side = turn * (ex * (qy - c0y) - ey * (qx - c0x))
         if (q_side >= 0) != (s_side >= 0):  # the edge s → q crosses the line
             t = s_side / (s_side - q_side)
             b[count, 0], b[count, 1] = sx + t * (qx - sx), sy + t * (qy - sy)
