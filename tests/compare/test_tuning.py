@@ -31,7 +31,12 @@ def test_baseline_study_is_seeded_and_scores_on_the_tuning_starts(tmp_path, regi
     again = tuning.tune_baseline(small(tmp_path / "other"), regions["square"], "naive")
     assert first["gains"] == again["gains"] and first["tuning_coverage"] == again["tuning_coverage"]
     assert set(first["gains"]) == {"attraction", "avoid_range", "avoidance", "damping"}
-    assert first["trials"] == 4 and first["cpu_seconds"] > 0
+    import optuna
+
+    study = optuna.load_study(study_name=first["study"], storage=p.tuning.baselines.storage)
+    per_trial = [t.user_attrs["cpu_seconds"] for t in study.trials]
+    assert first["trials"] == 4 and len(per_trial) == 4 and min(per_trial) > 0  # a naive trial takes milliseconds
+    assert first["cpu_seconds"] == round(sum(per_trial), 1)
     score = tuning.baseline_coverage("naive", first["gains"], p, regions["square"], p.tuning.starts_seed, 6)
     assert score == pytest.approx(first["tuning_coverage"])  # the objective is the coverage it reports
 
