@@ -10,9 +10,8 @@
    runs them (two processes share the caches and the memory bus: each runs slower than alone), with the ratio.
    From the side-by-side figures, the projected `train` stage (every run of params.yaml's matrix and ablation)
    and the same with every update at its matmul floor; section 8 adds the other stages.
-2. One update of all 9 agents, per configuration: the training's update (``MADDPGByHand``, the gradients written
-   out) against the readable ``MADDPG.update`` (autograd; the written-out one is kept only while it is at least
-   1.3x faster at the paper's batch) and the per-agent loop (``tests/learn/loop_maddpg.py``), as ratios.
+2. One update of all 9 agents, per configuration: the training's update (``MADDPG.update``, autograd over the
+   stacked agents) against the per-agent loop of separate networks (``tests/learn/loop_maddpg.py``), as a ratio.
 3. Environment throughput (agent-steps per second, random actions) at E = 1, 50 and 1,024 environments, with the
    CR reward on the square and with the shore wall on Bedok, against PettingZoo MPE2 ``simple_spread_v3`` (N = 9,
    continuous actions, one environment) and VMAS ``simple_spread`` (9 agents, the same E), as ratios.
@@ -63,7 +62,6 @@ from torch import nn
 from replicate.core.params import load_params, run_config
 from replicate.learn.general_train import GeneralTrainer
 from replicate.learn.maddpg import MADDPG
-from replicate.learn.maddpg_by_hand import MADDPGByHand
 from replicate.learn.process import hold_freed_memory
 from replicate.learn.replay import Batch, Replay
 from replicate.learn.shared_maddpg import SharedMADDPG, live_rows
@@ -211,7 +209,7 @@ def machine_gemm_gflops(seconds=1.0) -> float:
 CONFIGS = ("paper", "tuned")
 
 
-def agent_and_batch(params, config: str) -> tuple[MADDPGByHand, object]:
+def agent_and_batch(params, config: str) -> tuple[MADDPG, object]:
     """A fresh training learner of ``config`` (9 agents, CR's per-agent rewards) and one minibatch of random
     transitions."""
     algo = params.configs[config]
@@ -222,7 +220,7 @@ def agent_and_batch(params, config: str) -> tuple[MADDPGByHand, object]:
     buf.add(cfg.gamma, obs=rng.normal(size=(size, 9, od)).astype(np.float32),
             act=rng.uniform(-1, 1, (size, 9, 2)).astype(np.float32), rew=rng.normal(size=(size, 9)).astype(np.float32),
             next_obs=rng.normal(size=(size, 9, od)).astype(np.float32))
-    return MADDPGByHand(9, od, 2, cfg, "individual", seed=0), buf.sample(rng, cfg.batch_size)
+    return MADDPG(9, od, 2, cfg, "individual", seed=0), buf.sample(rng, cfg.batch_size)
 
 
 def general_agent_and_batch(params) -> tuple[SharedMADDPG, Batch]:
@@ -278,7 +276,7 @@ def update_breakdown(agent, batch, updates: int = 5) -> dict[str, tuple[float, f
                 m, k, n = a.shape[-2], a.shape[-1], b.shape[-1]
                 kind = "matmul, wide" if min(m, k, n) >= 16 else "matmul, skinny"
                 flops[kind] += 2 * a[..., 0, 0].numel() * m * k * n
-            elif name.startswith("_fused_adam") or name.startswith("_foreach"):
+            elif name.startswith(("_fused_adam", "_foreach")):
                 kind = "optimiser, clip, soft update"
             else:
                 kind = "elementwise, copies, reductions"
@@ -292,12 +290,10 @@ def update_breakdown(agent, batch, updates: int = 5) -> dict[str, tuple[float, f
 
 
 def update_times(params, config: str, rounds: int = 5) -> dict[str, float]:
-    """Seconds per update of 9 agents: the training's update (``MADDPGByHand``, the gradients written out), the
-    readable ``MADDPG.update`` (autograd) and the per-agent loop, timed alternately (best of 5 × 5 updates, median
-    over ``rounds``) so that the machine's drift hits all three alike."""
-    by_hand, batch = agent_and_batch(params, config)
-    rivals = {"by hand": by_hand, "autograd": MADDPG(9, by_hand.obs_dim, 2, by_hand.cfg, "individual", seed=0),
-              "per-agent loop": LoopMADDPG(by_hand)}
+    """Seconds per update of 9 agents: the training's update (``MADDPG.update``) and the per-agent loop, timed
+    alternately (best of 5 × 5 updates, median over ``rounds``) so that the machine's drift hits both alike."""
+    agent, batch = agent_and_batch(params, config)
+    rivals = {"stacked": agent, "per-agent loop": LoopMADDPG(agent)}
     times = {k: [] for k in rivals}
     for agent in rivals.values():
         agent.update(batch)
@@ -572,13 +568,9 @@ def update_section(params) -> None:
     print("== 2. one MADDPG update of 9 agents ==")
     for config in CONFIGS:
         t = update_times(params, config)
-        b = t["by hand"]
-        line = f"{config} (batch {params.configs[config].maddpg.batch_size}): " + "; ".join(
-            f"{k} {v * 1e3:.1f} ms" + ("" if k == "by hand" else f" ({v / b:.2f}x the time by hand)")
-            for k, v in t.items())
-        if config == "paper":  # the written-out gradients stay while they are worth it (CONTRIBUTING.md)
-            line += f"; keep the update by hand: {'yes' if t['autograd'] / b >= 1.3 else 'no'} (>= 1.3x)"
-        print(line)
+        b = t["stacked"]
+        print(f"{config} (batch {params.configs[config].maddpg.batch_size}): the stacked update {b * 1e3:.1f} ms; "
+              f"the per-agent loop {t['per-agent loop'] * 1e3:.1f} ms ({t['per-agent loop'] / b:.2f}x)")
 
 
 def environment_section(params, square) -> None:

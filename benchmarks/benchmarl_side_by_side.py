@@ -150,7 +150,7 @@ def project_agent_and_batch():
     import numpy as np
 
     from replicate.core.params import load_params
-    from replicate.learn.maddpg_by_hand import MADDPGByHand
+    from replicate.learn.maddpg import MADDPG
     from replicate.learn.replay import Replay
 
     cfg = load_params("params.yaml").configs["paper"].maddpg
@@ -160,7 +160,7 @@ def project_agent_and_batch():
     obs, next_obs = (rng.normal(size=(size, AGENTS, OBS_WIDTH)).astype(np.float32) for _ in range(2))
     act = rng.uniform(-1, 1, (size, AGENTS, 2)).astype(np.float32)
     buf.add(cfg.gamma, obs=obs, act=act, rew=rng.normal(size=(size, AGENTS)).astype(np.float32), next_obs=next_obs)
-    return MADDPGByHand(AGENTS, OBS_WIDTH, 2, cfg, "individual", seed=0), buf.sample(rng, BATCH)
+    return MADDPG(AGENTS, OBS_WIDTH, 2, cfg, "individual", seed=0), buf.sample(rng, BATCH)
 
 
 def project_update_alone(rounds: int = 5) -> float:

@@ -1,9 +1,8 @@
-"""The batched MADDPG is the same algorithm as N separate learners (openai/maddpg structure), and its update with
-the gradients written out (``MADDPGByHand``, the one the training runs) is its autograd update."""
+"""The batched MADDPG is the same algorithm as N separate learners (openai/maddpg structure), and a stack of runs
+is each run alone, bit for bit."""
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 
 import numpy as np
@@ -12,7 +11,6 @@ import torch
 
 from replicate.learn import run_stack
 from replicate.learn.maddpg import MADDPG, BatchedMLP, soft_update
-from replicate.learn.maddpg_by_hand import MADDPGByHand, adam_step, backward
 from replicate.learn.replay import Batch, Replay
 
 from .loop_maddpg import LoopMADDPG
@@ -45,40 +43,11 @@ def test_batched_mlp_equals_separate_networks():
         torch.testing.assert_close(out[i], h)
 
 
-@pytest.mark.parametrize("sizes", [[6, 32, 32, 1], [4, 32, 32, 2], [3, 8, 20, 17]])
-def test_hand_written_gradients_equal_autograd(sizes):
-    """``backward`` against autograd, for the gradient of every parameter and of the input. Adam would
-    hide a gradient off by a constant factor in an end-to-end test, so the gradients are checked here directly.
-    The sizes reach every form of ``stacked_matmul``: an output of 1 (outer product), of 2 (transposed) and
-    wide layers."""
-    net = BatchedMLP(3, sizes, torch.Generator().manual_seed(0))
-    x = torch.randn(3, 7, sizes[0], requires_grad=True)
-    grad_out = torch.randn(3, 7, sizes[-1])
-    out, saved = net.forward_saving(x.detach())
-    d_z1 = backward(net, saved, grad_out)
-    mine = [p.grad.clone() for p in net.parameters()]
-    mine_x = d_z1 @ net.weights[0].detach().mT
-    net.zero_grad()
-    h = x
-    for k, (w, b) in enumerate(zip(net.weights, net.biases)):
-        h = h @ w + b
-        h = torch.relu(h) if k < len(net.weights) - 1 else h
-    torch.testing.assert_close(out, h.detach())
-    (h * grad_out).sum().backward()
-    for p, g in zip(net.parameters(), mine):
-        torch.testing.assert_close(g, p.grad)
-    torch.testing.assert_close(mine_x, x.grad)
-
-
-LEARNERS = [MADDPG, MADDPGByHand]
-
-
-@pytest.mark.parametrize("learner", LEARNERS)
 @pytest.mark.parametrize("mode", ["individual", "shared"])
-def test_batched_update_equals_per_agent_loop(params, mode, learner):
+def test_batched_update_equals_per_agent_loop(params, mode):
     cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=64, actor_lr=1e-3, critic_lr=1e-3)
     n, od = 4, 4
-    batched = learner(n, od, 2, cfg, mode, seed=3)
+    batched = MADDPG(n, od, 2, cfg, mode, seed=3)
     loop = LoopMADDPG(batched)
     rng = np.random.default_rng(0)
     buf = filled_buffer(n, od, rng)
@@ -97,13 +66,12 @@ def test_batched_update_equals_per_agent_loop(params, mode, learner):
             torch.testing.assert_close(w[i].T, loop.actor_targets[i][2 * k].weight, rtol=1e-4, atol=1e-5)
 
 
-@pytest.mark.parametrize("learner", LEARNERS)
 @pytest.mark.parametrize("mode", ["individual", "shared"])
-def test_update_gradients_equal_the_per_agent_loop(params, mode, learner):
+def test_update_gradients_equal_the_per_agent_loop(params, mode):
     """The gradients of both losses inside ``update`` (learning rates 0 and no clipping, so they are left in
     ``.grad`` unchanged and the actor sees the same critic), against the autograd loss of each agent."""
     cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=64, grad_clip=1e9)
-    batched = learner(4, 4, 2, cfg, mode, seed=5)
+    batched = MADDPG(4, 4, 2, cfg, mode, seed=5)
     batched.scale_learning_rates(0.0)
     loop = LoopMADDPG(batched)
     for opt in (*loop.actor_opts, *loop.critic_opts):
@@ -119,34 +87,9 @@ def test_update_gradients_equal_the_per_agent_loop(params, mode, learner):
                 torch.testing.assert_close(b.grad[i, 0], nets[i][2 * k].bias.grad, rtol=1e-4, atol=1e-6)
 
 
-@pytest.mark.parametrize("config, mode, runs", [("paper", "individual", [0]), ("tuned", "shared", [1, 2])])
-def test_the_update_by_hand_is_the_autograd_update(params, config, mode, runs):
-    """Eight updates of a stack of runs by each (learning rates 1e-3): every parameter, Adam moment and diagnostic
-    agree to float32 rounding grown over the updates (the two differ in the order of their sums only; Adam turns a
-    gradient near 0 into a step of the learning rate whatever its rounding, so larger rates part them further; a
-    gradient off by any factor would part them by orders more, and the per-agent loop tests check each update's
-    gradients)."""
-    cfg = dataclasses.replace(params.configs[config].maddpg, batch_size=128, actor_lr=1e-3, critic_lr=1e-3)
-    readable, by_hand = MADDPG(5, 6, 2, cfg, mode, runs), MADDPGByHand(5, 6, 2, cfg, mode, runs)
-    rng = np.random.default_rng(7)
-    buffers = [filled_buffer(5, 6, rng) for _ in runs]
-    for _ in range(8):
-        batch = Batch.stack([b.sample(rng, cfg.batch_size) for b in buffers])
-        got, want = by_hand.update(batch), readable.update(batch)
-        np.testing.assert_allclose(got["critic_loss"], want["critic_loss"], rtol=1e-3)
-        np.testing.assert_allclose(got["q_abs"], want["q_abs"], rtol=1e-3)
-    for name in ("actor", "critic", "actor_target", "critic_target"):
-        for p, q in zip(by_hand.params[name], readable.params[name]):
-            torch.testing.assert_close(p, q, rtol=1e-3, atol=1e-4)
-    for name in ("actor_opt", "critic_opt"):
-        mine, theirs = getattr(by_hand, name).state_dict()["state"], getattr(readable, name).state_dict()["state"]
-        for i, st in theirs.items():
-            torch.testing.assert_close(mine[i]["exp_avg"], st["exp_avg"], rtol=1e-2, atol=1e-3)  # the gradients' mean
-
-
 def test_gradient_clip_and_soft_update(params):
     cfg = dataclasses.replace(params.configs["paper"].maddpg, batch_size=32)
-    agent = MADDPGByHand(3, 2, 2, cfg, "individual", seed=0)
+    agent = MADDPG(3, 2, 2, cfg, "individual", seed=0)
     before = [p.detach().clone() for p in agent.critic_target.parameters()]
     agent.update(filled_buffer(3, 2, np.random.default_rng(1)).sample(np.random.default_rng(2), 32))
     for b, t, p in zip(before, agent.critic_target.parameters(), agent.critic.parameters()):
@@ -159,26 +102,6 @@ def test_gradient_clip_and_soft_update(params):
         torch.testing.assert_close(p, q)
 
 
-def test_adam_step_is_the_optimizer_step():
-    """The unwrapped fused Adam step gives the optimiser's numbers bit for bit, also on state loaded from a
-    checkpoint (which replaces the state tensors)."""
-    g = torch.Generator().manual_seed(0)
-    nets = [BatchedMLP(3, [4, 8, 2], torch.Generator().manual_seed(0)) for _ in range(2)]
-    opts = [torch.optim.Adam(n.parameters(), lr=0.01, fused=True) for n in nets]
-    for step in range(6):
-        grads = [torch.randn(p.shape, generator=g) for p in nets[0].parameters()]
-        for net in nets:
-            for p, grad in zip(net.parameters(), grads):
-                p.grad = grad.clone()
-        opts[0].step()
-        adam_step(opts[1])
-        if step == 2:
-            opts[1].load_state_dict(copy.deepcopy(opts[0].state_dict()))  # as from a checkpoint file
-        for p, q in zip(*(n.parameters() for n in nets)):
-            assert torch.equal(p, q)
-    assert opts[1].state_dict()["state"][0]["step"].item() == 6
-
-
 @pytest.mark.parametrize("config, mode", [("tuned", "individual"), ("paper", "shared")])
 def test_a_stack_of_runs_is_its_runs_bit_for_bit(params, config, mode):
     """The training's update over seeds [3, 8, 4] against three one-seed learners fed the same minibatches: every
@@ -188,8 +111,8 @@ def test_a_stack_of_runs_is_its_runs_bit_for_bit(params, config, mode):
     ``run_stack.run_state`` is the one-run state."""
     cfg = dataclasses.replace(params.configs[config].maddpg, batch_size=64)
     seeds = [3, 8, 4]
-    stack = MADDPGByHand(9, 2, 2, cfg, mode, seeds)
-    alone = [MADDPGByHand(9, 2, 2, cfg, mode, s) for s in seeds]
+    stack = MADDPG(9, 2, 2, cfg, mode, seeds)
+    alone = [MADDPG(9, 2, 2, cfg, mode, s) for s in seeds]
     rng = np.random.default_rng(0)
     buffers = [filled_buffer(9, 2, rng) for _ in seeds]
     for _ in range(30):

@@ -43,7 +43,7 @@ from replicate.core.sections import (
     SWRewardConfig,
     WorldConfig,
 )
-from replicate.learn import maddpg_by_hand
+from replicate.learn.maddpg import MADDPG
 from replicate.learn.policy import FleetPolicy
 from replicate.learn.replay import Batch, Replay
 from replicate.learn.shared_maddpg import SharedMADDPG
@@ -94,7 +94,7 @@ def _update_numbers(digest) -> None:
                    act=rng.uniform(-1, 1, (2 * batch, 9, 2)).astype(np.float32),
                    rew=rng.normal(size=(2 * batch, 9)).astype(np.float32),
                    next_obs=rng.normal(size=(2 * batch, 9, 2)).astype(np.float32))
-        agent = maddpg_by_hand.LEARNER(9, 2, 2, cfg, "individual", seed=0)  # the training's update
+        agent = MADDPG(9, 2, 2, cfg, "individual", seed=0)
         for _ in range(2):
             agent.update(buffer.sample(rng, batch))
         for net in (agent.actor, agent.critic, agent.actor_target, agent.critic_target):

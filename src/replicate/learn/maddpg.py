@@ -7,10 +7,9 @@ each agent's parameters and Adam state are separate slices, this is the same alg
 Several independent runs (seeds) of the N agents can train in one process: their networks are stacked too
 (weights [S·N, in, out]) and every array carries a leading run axis [S, ...].
 
-``MADDPG.update`` is the algorithm as it reads: two losses and autograd. The per-region runs were trained by the same
-update with its gradients written out (``maddpg_by_hand.MADDPGByHand``), which ``tests/learn/test_maddpg.py`` checks
-against this one and against a per-agent loop; ``make bench`` section 2 times the two (1.15-1.2× at the paper's
-batch of 1024: under the 1.3× that would keep the written-out gradients, so they go with the runs' next retraining).
+``MADDPG.update`` is the algorithm as it reads: two losses and autograd, the critic target one line that mirrors
+eq. (y). ``tests/learn/test_maddpg.py`` checks its gradients against a per-agent loop of separate networks
+(``tests/learn/loop_maddpg.py``), and a stack of runs against each run alone, bit for bit.
 
 ``reward_mode`` ``"shared"`` is the original collaborative MADDPG (every critic learns the team reward, the
 agents' mean; for SW-MARL, which already returns one r to everyone, that is r itself); ``"individual"`` is the
@@ -83,7 +82,7 @@ class BatchedMLP(nn.Module):
         return out
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """x [N, B, in] → [N, B, out] (the rollouts' and the written-out update's form of every matmul)."""
+        """x [N, B, in] → [N, B, out] (the rollouts' form of every matmul)."""
         return self.layers(x)[0]
 
     def differentiable(self, x: torch.Tensor) -> torch.Tensor:
@@ -94,11 +93,6 @@ class BatchedMLP(nn.Module):
             x = torch.baddbmm(b, x, w)
             x = torch.relu(x) if k < last else x
         return x
-
-    @torch.no_grad()
-    def forward_saving(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
-        """``forward`` without autograd, keeping what a written-out backward pass needs (``maddpg_by_hand``)."""
-        return self.layers(x)
 
     def layers(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """→ (output [N, B, out], the input of every layer: x and the hidden ReLU outputs)."""
@@ -197,8 +191,11 @@ class MADDPG:
         self.critic = BatchedMLP.stack(critics).to(self.device)
         self.actor_target = copy.deepcopy(self.actor)
         self.critic_target = copy.deepcopy(self.critic)
-        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr, fused=True)
-        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr, fused=True)
+        # the multi-tensor Adam rounds every element of a stacked tensor as it rounds it in a one-run tensor, so a
+        # run in a stack is bit for bit the run alone; the fused kernel finishes a tensor's tail elements with other
+        # rounding, and is no faster at these sizes (``make bench`` section 2)
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr, foreach=True)
+        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr, foreach=True)
         self.params = {k: list(getattr(self, k).parameters()) for k in NETWORKS}  # run_stack loads in place
         self.agents = torch.arange(n_agents, device=self.device)
         # rows of critic i's first layer that read agent i's own action: the joint input is [o_1..o_N, a_1..a_N]

@@ -26,8 +26,7 @@ from replicate.core.schema import ConfigError, to_dict
 from replicate.learn import run_stack
 from replicate.learn.fingerprint import fingerprint
 from replicate.learn.loop import TrainingLoop
-from replicate.learn.maddpg import BatchedMLP
-from replicate.learn.maddpg_by_hand import LEARNER
+from replicate.learn.maddpg import MADDPG, BatchedMLP
 from replicate.learn.replay import Replay
 from replicate.learn.runs import run_identity
 from replicate.world.regions import Region
@@ -80,7 +79,7 @@ class Played:
 class Trainer:
     """S training runs of one config, method and region, one per seed of ``seeds``, written to the folders ``outs``
     (an int and a folder for one run). The runs step together: their environments are blocks of one batch
-    (``CoverageEnv.seed``) and their networks one stack (``LEARNER``), so the per-operation cost of an update and
+    (``CoverageEnv.seed``) and their networks one stack (``MADDPG``), so the per-operation cost of an update and
     an environment step is paid once for all of them. Each run still draws from its own generators, learns from
     its own replay buffer and writes its own folder, and its curve is bit for bit the one it gets alone
     (``tests/learn/test_training.py``). ``run`` trains to ``episodes``; ``load_checkpoint`` first, to continue."""
@@ -109,7 +108,7 @@ class Trainer:
                         if algo.select_every else None)
         self.noise_rngs = [np.random.default_rng(st[1]) for st in streams]
         n, od = self.env.n_agents, self.env.obs_dim
-        self.agent = LEARNER(n, od, 2, algo.maddpg, self.rc.method.reward_mode, seed=self.seeds)
+        self.agent = MADDPG(n, od, 2, algo.maddpg, self.rc.method.reward_mode, seed=self.seeds)
         capacity = min(algo.maddpg.buffer_size, self.episodes * self.rc.world.episode_length)
         # per run: its replay memory sampled by its own generator; the kept actors when selecting
         self.loop = TrainingLoop(self.agent, algo.maddpg, [Replay(capacity, n, od) for _ in self.seeds],

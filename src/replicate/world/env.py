@@ -182,7 +182,7 @@ class CoverageEnv:
         if self._geometry is None:
             c = self.coverage
             self._geometry = CoverageGeometry(self.region.polygon, c.radius, c.edges, c.table_spacing,
-                                              c.raster_spacing, closed=self.wall)
+                                              c.raster_spacing)
         return self._geometry
 
     # ---- episode -----------------------------------------------------------------------------------------

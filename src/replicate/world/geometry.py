@@ -123,15 +123,12 @@ def check_grid_size(region: Polygon, radius: float, table_spacing: float, raster
 class CoverageGeometry:
     """Fast, batched eq. (5)/(6) geometry for one region and one coverage polygon (see module docstring).
 
-    ``closed=True`` reads eq. (5)'s cases with closed sets, as the shapely reference does: a coverage polygon
-    touching the shore from inside is "inside", one touching it from outside "partial" (area 0). With
-    ``closed=False`` both exact contacts fall to the next case ("partial", "disjoint"): the branches the
-    ``paper`` and ``tuned`` runs were trained with, kept for them. A buoy clamped to the ``tuned`` geofence at
-    R from the region's side touches it from outside exactly, so the two readings train differently there; the
-    shore wall keeps buoys in contact all the time and uses closed sets."""
+    eq. (5)'s cases read with closed sets, as the shapely reference does: a coverage polygon touching the shore
+    from inside is "inside", one touching it from outside "partial" (area 0). A buoy clamped to the ``tuned``
+    geofence at R from the region's side touches it from outside exactly, and the shore wall keeps buoys in
+    contact all the time: both are scored as the exact geometry scores them."""
 
-    def __init__(self, region: Polygon, radius: float, edges: int, table_spacing: float, raster_spacing: float,
-                 closed: bool = False):
+    def __init__(self, region: Polygon, radius: float, edges: int, table_spacing: float, raster_spacing: float):
         if not (0 < table_spacing <= radius / 2 and 0 < raster_spacing <= radius / 2):
             raise ValueError(f"table_spacing and raster_spacing must lie in (0, R/2] = (0, {radius / 2:g}] m: a "
                              "coarser grid does not resolve the coverage polygon")
@@ -139,7 +136,6 @@ class CoverageGeometry:
         self.region = region
         self.radius = radius
         self.edges = edges
-        self.closed = closed
         self.offsets = polygon_offsets(radius, edges)
         self.cov_area = float(Polygon(self.offsets).area)
         self.eroded, self.dilated = minkowski(region, self.offsets)
@@ -158,9 +154,8 @@ class CoverageGeometry:
         """eq. (5)'s cases for every agent. xy: [E, N, 2] → CoverTerms of [E, N] arrays."""
         flat = xy.reshape(-1, 2)
         x, y = flat[:, 0], flat[:, 1]
-        test = shapely.intersects_xy if self.closed else shapely.contains_xy
-        inside = test(self.eroded, x, y)
-        touching = test(self.dilated, x, y)
+        inside = shapely.intersects_xy(self.eroded, x, y)  # closed sets: a boundary point is in
+        touching = shapely.intersects_xy(self.dilated, x, y)
         disjoint = ~touching
         area = np.where(inside, self.cov_area, 0.0)
         partial = touching & ~inside
