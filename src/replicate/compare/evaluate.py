@@ -26,7 +26,7 @@ from replicate.core.progress import bar as progress_bar
 from replicate.core.schema import ConfigError
 from replicate.core.sections import SensorsConfig
 from replicate.core.studies import LloydConfig, NaiveConfig, StartsConfig
-from replicate.learn.policy import load_policy
+from replicate.learn.policy import load_policy, takes_positions
 from replicate.learn.runs import core_seconds
 from replicate.learn.train import CURVE, load_actors
 from replicate.world import coverage
@@ -329,6 +329,15 @@ def current_record(current: Current | tuple[float, float] | None) -> list[float]
 
 def fleet_policy(module) -> baselines.Policy:
     """A general policy's TorchScript module as a deterministic policy of an environment's local sensors."""
+    if takes_positions(module):  # messages between the buoys that hear each other
+        def policy(env: CoverageEnv) -> np.ndarray:
+            live = np.ones(env.pos.shape[:2], bool) if env.alive is None else env.alive
+            with torch.no_grad():
+                return module(torch.as_tensor(env.observe()), torch.as_tensor(env.pos, dtype=torch.float32),
+                              torch.as_tensor(live)).numpy()
+
+        return policy
+
     def policy(env: CoverageEnv) -> np.ndarray:
         with torch.no_grad():
             return module(torch.as_tensor(env.observe())).numpy()

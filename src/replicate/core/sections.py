@@ -211,8 +211,17 @@ class SharedLearnerConfig:
     imitation: Literal["none", "beside", "alone"] = "none"  # the clairvoyant planner as a teacher: its action for
     # every buoy at every state the learner visits (DAgger's labels), imitated beside the actor-critic loss or alone
     imitation_weight: NonNegative = 1.0  # the weight of the imitation loss, mean squared action error per buoy
-    OPTIONAL: ClassVar[tuple[str, ...]] = ("symmetry", "imitation", "imitation_weight")  # left out of a run's
-    # identity at their default (as sensors')
+    hops: Annotated[Int, In(0, 3)] = 0  # rounds of messages between the buoys that hear each other
+    # (``learn.messages``); 0: the actor reads its own sensors only
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("symmetry", "imitation", "imitation_weight", "hops")  # left out of a
+    # run's identity at their default (as sensors')
+
+    @model_validator(mode="after")
+    def check(self):
+        if self.hops and self.symmetry == "d4":
+            raise ConfigError("general.learner: hops (messages) run in each buoy's own compass frame: set symmetry "
+                              "to d4_frame (or none), not d4")
+        return self
 
 
 def check_starts(starts: tuple[str, ...], where: str) -> None:

@@ -78,7 +78,7 @@ class GeneralTrainer:
         self.validation = self.validation_worlds(np.random.default_rng(streams[4]))
         columns = observation_columns("local", self.gc.sensors)
         obs_dim = len(columns)
-        self.agent = SharedMADDPG(obs_dim, 2, self.gc.learner, seed=seed, columns=columns)
+        self.agent = SharedMADDPG(obs_dim, 2, self.gc.learner, seed=seed, columns=columns, sensors=self.gc.sensors)
         self.initial_actor = actor
         if actor is not None:
             self.agent.actor.load_state_dict(actor)
@@ -133,7 +133,7 @@ class GeneralTrainer:
             live = np.ones((env.n_envs, world.n_agents), bool) if env.alive is None else env.alive.copy()
             pos = env.pos.copy()
             taught = {} if self.teacher is None else {"expert": self.teacher(env).astype(np.float32)}
-            act = self.agent.act(obs, sigma, self.noise).numpy()
+            act = self.agent.act(obs, sigma, self.noise, pos, live).numpy()
             step = env.step(act)
             writer.push(t == gc.episode_length - 1, live=live, obs=obs, act=act, rew=step.pay, pos=pos,
                         next_obs=step.obs, next_pos=env.pos.copy(), next_live=live,  # bootstrap on those in service
@@ -155,7 +155,7 @@ class GeneralTrainer:
             env = world.env
             obs = env.reset(seed=seed, start=start)  # the same starts every time
             for _ in range(self.gc.episode_length):
-                obs = env.step(self.agent.actor(torch.as_tensor(obs))[0].numpy()).obs
+                obs = env.step(self.agent.policy(obs, env.pos, env.alive).numpy()).obs
             scores.append(float(env.coverage_fraction().mean()))
         score = float(np.mean(scores))
         self.loop.keep(0, score, episodes, lambda: {k: v.clone() for k, v in self.agent.actor.state_dict().items()},

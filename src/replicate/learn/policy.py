@@ -58,6 +58,29 @@ class FleetPolicy(nn.Module):
         return torch.tanh(self.net(obs))
 
 
+class FleetMessagePolicy(nn.Module):
+    """a_i = tanh(μ(o_i, messages)) for a fleet whose buoys hear each other (``messages.MessageActor``): obs
+    [N, obs_dim] or [batch, N, obs_dim], pos [N, 2] or [batch, N, 2] (simulation units) and the buoys in service
+    ``live`` (same shape without the last axis) → actions [..., N, 2]."""
+
+    def __init__(self, net: nn.Module):
+        super().__init__()
+        self.net = net
+        self.hops: int = net.hops  # read by the runners: this policy takes positions
+
+    def forward(self, obs: torch.Tensor, pos: torch.Tensor, live: torch.Tensor) -> torch.Tensor:
+        one = obs.dim() == 2
+        if one:
+            obs, pos, live = obs.unsqueeze(0), pos.unsqueeze(0), live.unsqueeze(0)
+        a = torch.tanh(self.net(obs, pos, live)) * live.unsqueeze(-1)
+        return a.squeeze(0) if one else a
+
+
+def takes_positions(module) -> bool:
+    """Whether an exported general policy reads the fleet's positions beside its observations (messages)."""
+    return hasattr(module, "hops")
+
+
 def checksum(module, metadata: dict) -> str:
     """SHA-256 of a policy's tensors (names, shapes, bytes) and of its metadata but this very field: what a file
     carries so that a reader can tell it is the one that was written."""

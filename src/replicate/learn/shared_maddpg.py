@@ -4,7 +4,8 @@ The per-region MADDPG (``maddpg.py``) gives each of N buoys its own actor and a 
 observation of exactly N: it cannot run with another N, and each lake is a new training. Here (Lowe et al. 2017's
 centralised training with decentralised execution, kept; parameters shared as in Gupta et al. 2017):
 
-- the actor μ(o_i) maps one buoy's local observation (``sensors``) to its action, the same network for all;
+- the actor μ(o_i) maps one buoy's local observation (``sensors``) to its action, the same network for all; with
+  ``hops`` it also hears what its neighbours send, over that many rounds of messages (``messages``);
 - the critic scores buoy i's action with what the others do, whatever their number:
   Q(o_i, a_i, mean_{j ≠ i, live} φ(o_j, a_j, p_j − p_i)), φ an embedding of one other buoy seen from i
   (its observation, action and relative position; a mean, so any N and any order), over the whole fleet or,
@@ -27,7 +28,8 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from replicate.core.sections import SharedLearnerConfig
+from replicate.core.sections import SensorsConfig, SharedLearnerConfig
+from replicate.learn.messages import MessageActor
 from replicate.learn.replay import Batch
 from replicate.learn.symmetry import symmetric
 
@@ -45,29 +47,49 @@ def mlp(sizes: list[int]) -> nn.Sequential:
 class SharedActor(nn.Module):
     """a_i = tanh(μ(o_i)) for every buoy: obs [..., obs_dim] → (action, pre-tanh) [..., act_dim]. With a
     ``symmetry`` group (``symmetry.symmetric``; ``columns`` name the observation's), μ is the MLP averaged over
-    the group's turns of the observation, and the policy turns with the world."""
+    the group's turns of the observation, and the policy turns with the world. With ``hops`` ≥ 1, μ is a
+    ``messages.MessageActor`` over the buoys each hears (``sensors``: its K nearest within the range), which
+    reads whole fleets: ``fleet``."""
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: int, symmetry: str = "none",
-                 columns: list[str] | None = None):
+                 columns: list[str] | None = None, hops: int = 0, sensors: SensorsConfig | None = None):
         super().__init__()
-        self.net = symmetric(mlp([obs_dim, hidden, hidden, act_dim]), columns or [], symmetry)
+        self.hops = hops
+        if hops:
+            sensors = sensors or SensorsConfig()
+            self.net = MessageActor(obs_dim, act_dim, hidden, hops, columns or [], sensors.neighbours,
+                                    sensors.comm_range, canonical=symmetry == "d4_frame")
+        else:
+            self.net = symmetric(mlp([obs_dim, hidden, hidden, act_dim]), columns or [], symmetry)
 
     @classmethod
-    def of(cls, obs_dim: int, act_dim: int, cfg: SharedLearnerConfig, columns: list[str] | None = None):
+    def of(cls, obs_dim: int, act_dim: int, cfg: SharedLearnerConfig, columns: list[str] | None = None,
+           sensors: SensorsConfig | None = None):
         """The actor of a learner's configuration: the one place its network is read from ``general.learner``."""
-        return cls(obs_dim, act_dim, cfg.hidden, cfg.symmetry, columns)
+        return cls(obs_dim, act_dim, cfg.hidden, cfg.symmetry, columns, cfg.hops, sensors)
 
     @classmethod
     def from_checkpoint(cls, saved: dict):
         """The actor of a general run's ``actor.pt`` (``general_train``), weights loaded: its learner's
         configuration as saved (files written before it was saved name only the width and the symmetry)."""
         learner = saved.get("learner") or {"hidden": saved["hidden"], "symmetry": saved.get("symmetry", "none")}
-        actor = cls.of(len(saved["columns"]), 2, SharedLearnerConfig(**learner), saved["columns"])
+        actor = cls.of(len(saved["columns"]), 2, SharedLearnerConfig(**learner), saved["columns"],
+                       SensorsConfig(**saved["sensors"]) if saved.get("sensors") else None)
         actor.load_state_dict(saved["actor"])
         return actor
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         pre = self.net(obs)
+        return torch.tanh(pre), pre
+
+    def fleet(self, obs: torch.Tensor, pos: torch.Tensor, live: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(action, pre-tanh) [B, N, act_dim] of padded fleets: obs [B, N, obs_dim], pos [B, N, 2], live [B, N];
+        0 for a slot out of service. Without messages the buoys in service alone run through μ."""
+        if self.hops:
+            pre = self.net(obs, pos, live) * live[..., None]
+        else:
+            pre = obs.new_zeros(live.shape + (2,))
+            pre[live] = self.net(obs[live])
         return torch.tanh(pre), pre
 
 
@@ -148,12 +170,13 @@ class SharedMADDPG:
     """One shared actor and one pooled critic with their targets, and the update that trains them."""
 
     def __init__(self, obs_dim: int, act_dim: int, cfg: SharedLearnerConfig, seed: int = 0,
-                 columns: list[str] | None = None):
-        """``columns``: the observation's names, which ``cfg.symmetry`` turns (``symmetry``)."""
+                 columns: list[str] | None = None, sensors: SensorsConfig | None = None):
+        """``columns``: the observation's names, which ``cfg.symmetry`` turns (``symmetry``); ``sensors``: whom a
+        buoy hears, which messages (``cfg.hops``) travel between."""
         self.cfg = cfg
         with torch.random.fork_rng():  # the initial weights from ``seed``, leaving torch's global stream as it was
             torch.manual_seed(seed)
-            self.actor = SharedActor.of(obs_dim, act_dim, cfg, columns)
+            self.actor = SharedActor.of(obs_dim, act_dim, cfg, columns, sensors)
             self.critic = PooledCritic(obs_dim, act_dim, cfg.hidden, cfg.embed, cfg.pool_range,
                                        cfg.pool_neighbours)
         self.actor_target, self.critic_target = copy.deepcopy(self.actor), copy.deepcopy(self.critic)
@@ -172,8 +195,7 @@ class SharedMADDPG:
 
         # Critic: y_i = r_i + γᵐ Q'(o'_i, μ'(o'_i), pool_j φ'(o'_j, μ'(o'_j), p'_j − p'_i))   (MADDPG's target)
         with torch.no_grad():  # a buoy lost before the bootstrap step has no future: its target is its return
-            next_act = b.act.new_zeros(b.act.shape)
-            next_act[b.next_live] = self.actor_target(b.next_obs[b.next_live])[0]
+            next_act = self.actor_target.fleet(b.next_obs, b.next_pos, b.next_live)[0]
             pool = self.critic_target.pooled(b.next_obs, next_act, then)
             q_next = self.critic_target.score(b.next_obs[rows], next_act[rows], pool) * b.next_live[rows]
             y = b.rew[rows] + b.disc[rows[0]] * q_next
@@ -188,7 +210,7 @@ class SharedMADDPG:
         # their taken actions, so the pool does not depend on μ here
         with torch.no_grad():
             pool = critic.pooled(b.obs, b.act, now)
-        mu, pre = self.actor(obs)
+        mu, pre = (x[rows] for x in self.actor.fleet(b.obs, b.pos, b.live))
         actor_loss = cfg.actor_reg * (pre**2).mean()
         if cfg.imitation != "alone":
             actor_loss = actor_loss - critic.score(obs, mu, pool).mean()
@@ -211,8 +233,19 @@ class SharedMADDPG:
         self.critic_opt.param_groups[0]["lr"] = factor * self.cfg.critic_lr
 
     @torch.no_grad()
-    def act(self, obs, sigma: float, generator: torch.Generator) -> torch.Tensor:
-        """Behaviour actions for obs [..., obs_dim]: μ(o) plus Gaussian noise σ, clipped to [−1, 1]."""
-        mu, _ = self.actor(torch.as_tensor(obs, dtype=torch.float32))
+    def policy(self, obs, pos, live) -> torch.Tensor:
+        """The deterministic actions μ [E, N, act_dim] of fleets: obs [E, N, obs_dim], pos [E, N, 2], live [E, N]
+        (None: every buoy in service; only an actor with messages reads pos and live)."""
+        obs = torch.as_tensor(obs, dtype=torch.float32)
+        if not self.actor.hops:
+            return self.actor(obs)[0]
+        live = torch.ones(obs.shape[:2], dtype=torch.bool) if live is None else torch.as_tensor(live)
+        return self.actor.fleet(obs, torch.as_tensor(pos, dtype=torch.float32), live)[0]
+
+    @torch.no_grad()
+    def act(self, obs, sigma: float, generator: torch.Generator, pos=None, live=None) -> torch.Tensor:
+        """Behaviour actions for obs [E, N, obs_dim] (pos and live as ``policy``): μ plus Gaussian noise σ,
+        clipped to [−1, 1]."""
+        mu = self.policy(obs, pos, live)
         noise = torch.randn(mu.shape, generator=generator) * sigma
         return (mu + noise).clamp(-1.0, 1.0)

@@ -110,11 +110,21 @@ class CompassCanonical(CompassSymmetric):
             score[:, k].index_add_(0, self.obs_index[k], w * self.obs_sign[k])
         self.register_buffer("score", score)
 
+    def frame(self, obs: torch.Tensor) -> torch.Tensor:
+        """The canonical frame g* of each observation [..., D] → [...], an index into the group."""
+        return (obs @ self.score).argmax(dim=-1)
+
+    def into(self, obs: torch.Tensor, best: torch.Tensor) -> torch.Tensor:
+        """g*·o: each observation [..., D] turned into its frame ``best`` [...]."""
+        return torch.gather(obs, -1, self.obs_index[best]) * self.obs_sign[best]
+
+    def back(self, pre: torch.Tensor, best: torch.Tensor) -> torch.Tensor:
+        """g*⁻¹·a: each action [..., 2] of the canonical frame turned back into the world's."""
+        return torch.gather(pre, -1, self.act_index[best]) * self.act_sign[best]
+
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        best = (obs @ self.score).argmax(dim=-1)  # [...]: the canonical frame g* of each observation
-        seen = torch.gather(obs, -1, self.obs_index[best]) * self.obs_sign[best]  # g*·o [..., D]
-        pre = self.net(seen)  # [..., 2]
-        return torch.gather(pre, -1, self.act_index[best]) * self.act_sign[best]  # g*⁻¹ of it
+        best = self.frame(obs)
+        return self.back(self.net(self.into(obs, best)), best)
 
 
 def symmetric(net: nn.Module, columns: list[str], group: str) -> nn.Module:

@@ -27,6 +27,7 @@ class Actor:
     def __init__(self, path: str | Path, real: bool = False, units: Units | None = None):
         self.path, self.real = Path(path), real
         self.module, self.meta = load_policy(path)
+        refuse_messages(path, self.meta)
         self.columns = list(self.meta["observation_layout"])
         self.general = self.meta.get("n_agents") == "any"
         if real and self.general and units is None:
@@ -102,6 +103,15 @@ def stream(actor: Actor, lines: IO[str] | None = None, out: IO[str] | None = Non
     return steps
 
 
+def refuse_messages(path, meta: dict) -> None:
+    """A policy whose buoys pass messages (``learn.messages``) reads positions beside the observations, which the
+    control contract (one buoy's observation in, its action out) does not carry yet: refused by name."""
+    if meta.get("messages"):
+        raise ValueError(f"{path}: a policy whose buoys pass messages ({meta['messages']['hops']} hops) reads the "
+                         "fleet's positions beside its observations; the control contract carries observations "
+                         "only. Run it with `replicate evaluate --policy` or `replicate plan`")
+
+
 def export_for(policy: str | Path, out: str | Path, params: Params, units: Units,
                onnx_out: str | Path | None = None) -> dict:
     """A general policy re-exported with its control contract for one deployment's SI scale → the metadata; with
@@ -110,6 +120,7 @@ def export_for(policy: str | Path, out: str | Path, params: Params, units: Units
     if meta.get("n_agents") != "any":
         raise ValueError(f"{policy}: a policy for {meta.get('n_agents')} buoys of one region; --radius-m and "
                          "--speed-ms re-export a general policy (`replicate export` of a general run)")
+    refuse_messages(policy, meta)
     sensors = SensorsConfig(**meta["sensor_config"])
     meta = {k: v for k, v in meta.items() if k != "checksum"}
     meta["contract"] = contract(params.world, params.coverage, sensors, meta["observation_layout"], units)

@@ -16,7 +16,7 @@ from replicate.core import artifacts
 from replicate.core.artifacts import CheckpointError
 from replicate.core.schema import to_dict
 from replicate.core.sections import SensorsConfig
-from replicate.learn.policy import FleetPolicy, SwarmPolicy, save_policy, sensor_config
+from replicate.learn.policy import FleetMessagePolicy, FleetPolicy, SwarmPolicy, save_policy, sensor_config
 from replicate.learn.shared_maddpg import SharedActor
 from replicate.learn.train import load_actors
 from replicate.world.env import observation_columns
@@ -75,7 +75,7 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
                               "train it again with `replicate train-general`") from None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        module = torch.jit.script(FleetPolicy(actor.net.eval()))
+        module = torch.jit.script((FleetMessagePolicy if actor.hops else FleetPolicy)(actor.net.eval()))
     metadata = {
         "format": "buoy-swarm-coverage general policy v1",
         "n_agents": "any",
@@ -90,6 +90,11 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
     }
     if saved.get("symmetry", "none") != "none":  # an actor averaged over the compass's turns (``symmetry``)
         metadata["symmetry"] = saved["symmetry"]
+    if actor.hops:  # the buoys' positions beside their observations (``learn.messages``)
+        metadata["messages"] = {
+            "hops": actor.hops, "heard": f"the {sensors.neighbours} nearest buoys within {sensors.comm_range} m",
+            "inputs": "obs [N, obs_dim], pos [N, 2] (simulation metres, any common origin), live [N] bool "
+                      "(the buoys in service); each with a leading batch axis or without"}
     if baseline_gains:
         metadata["baseline_gains"] = {k: {"gains": baseline_gains[k]["gains"], "study": baseline_gains[k].get("study")}
                                       for k in ("naive_tuned", "lloyd_tuned", "decentralised_tuned", "geodesic_tuned")
