@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from replicate.compare.baselines import lloyd, voronoi_centroids
-from replicate.compare.decentralised import decentralised_lloyd, local_centroids, water_points
+from replicate.compare.decentralised import decentralised_lloyd, local_centroids
 from replicate.compare.evaluate import rollout
 from replicate.core.studies import LloydConfig
 from replicate.world.coverage import coverage_fraction
 from replicate.world.env import CoverageEnv
+from replicate.world.geometry import water_grid
 
 
 def test_knowing_everything_and_hearing_everyone_it_is_lloyd(regions):
@@ -23,7 +24,7 @@ def test_knowing_everything_and_hearing_everyone_it_is_lloyd(regions):
     minx, miny, maxx, maxy = water.bounds
     cand = rng.uniform((minx, miny), (maxx, maxy), size=(400, 2))
     pos = cand[shapely.contains_xy(water, cand[:, 0], cand[:, 1])][:18].reshape(3, 6, 2)
-    points = water_points(water, 0.02)
+    points = water_grid(water, 0.02)
     known = np.ones((3, 6, len(points)), bool)
     got = local_centroids(pos, known, points, k=5, comm_range=100.0, alive=None)
     np.testing.assert_allclose(got, voronoi_centroids(water, pos), atol=0.02)
@@ -33,7 +34,7 @@ def test_a_buoy_alone_heads_for_the_middle_of_the_water_it_knows(regions):
     """One buoy at the square's corner, hearing no one, knowing the water within 1 m: its target is the centroid
     of that quarter disc, 4/(3π) m along each side, not the square's middle (0, 0) that clairvoyant Lloyd aims
     at."""
-    points = water_points(regions["square"].polygon, 0.01)
+    points = water_grid(regions["square"].polygon, 0.01)
     pos = np.array([[[-1.5, -1.5]]])
     known = np.linalg.norm(points - pos[0, 0], axis=1)[None, None] <= 1.0
     target = local_centroids(pos, known, points, k=4, comm_range=2.0, alive=None)[0, 0]

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import shapely
 import shapely.affinity
 
-from replicate.world.env import CoverageEnv
+from replicate.world.env import CoverageEnv, Pay
 
 
 def make(params, region, **kw):
@@ -205,3 +207,24 @@ def test_an_island_filling_the_lake_is_measured_by_the_water_around_it(params):
     lake = shapely.box(0, 0, 3.4, 3.4).difference(shapely.box(0.3, 0.3, 3.1, 3.1))
     with pytest.raises(RegionError, match=r"moat is too narrow .* circle of open water in it is 0.3\d* m across"):
         CoverageEnv(Region("moat", lake), params.world, params.coverage)
+
+
+def test_lloyd_shaping_is_potential_based(params, regions):
+    """``Pay.lloyd`` adds β(γΦ(s') − Φ(s)) to each buoy's pay: over an episode the added pay, discounted, sums to
+    β(γᵀΦ(s_T) − Φ(s_0)) for every buoy, whatever the actions (Ng et al. 1999), and nothing else changes."""
+    world = dataclasses.replace(params.world, n_agents=4, episode_length=10)
+    options = {"n_envs": 2, "reward": "cr", "cr": params.cr_reward, "observation": "local", "wall": True,
+               "union_credit": "difference"}
+    plain = CoverageEnv(regions["rectangle"], world, params.coverage, pay=Pay(0.01), **options)
+    shaped = CoverageEnv(regions["rectangle"], world, params.coverage, pay=Pay(0.01, lloyd=2.0, gamma=0.9), **options)
+    for env in (plain, shaped):
+        env.reset(seed=3, start="corner")
+    start, added = shaped.potential.copy(), np.zeros((2, 4))
+    rng = np.random.default_rng(0)
+    for t in range(10):
+        push = rng.uniform(-1, 1, (2, 4, 2))
+        a, b = plain.step(push), shaped.step(push)
+        np.testing.assert_array_equal(a.reward, b.reward)
+        added += 0.9**t * (b.pay - a.pay)
+    np.testing.assert_allclose(added, 2.0 * (0.9**10 * shaped.potential - start), atol=1e-12)
+    assert plain.potential is None and np.abs(added).max() > 0

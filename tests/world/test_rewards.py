@@ -98,3 +98,42 @@ def test_coverage_polygon_is_the_regular_30gon():
     np.testing.assert_allclose(np.linalg.norm(off, axis=1), R)
     x, y = off[:, 0], off[:, 1]
     assert 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) == pytest.approx(A_COV)
+
+
+def test_lloyd_potential_splits_lloyds_cost_among_the_cells():
+    """Σ_i Φ_i is minus the mean squared distance from the water to its nearest buoy (in R²), a lost buoy has no
+    cell, and its water goes to the others."""
+    from shapely.geometry import box
+
+    from replicate.world.geometry import water_grid
+
+    points = water_grid(box(0, 0, 3, 1), 0.25)
+    rng = np.random.default_rng(0)
+    pos = rng.uniform([0, 0], [3, 1], size=(4, 5, 2))
+    phi = rewards.lloyd_potential(pos, None, points, 0.5)
+    nearest = np.square(points[None, :, None] - pos[:, None]).sum(-1).min(-1)  # [E, P]
+    np.testing.assert_allclose(phi.sum(1), -nearest.mean(1) / 0.25)
+    assert (phi < 0).all()
+    alive = np.ones((4, 5), bool)
+    alive[:, 2] = False
+    lost = rewards.lloyd_potential(pos, alive, points, 0.5)
+    assert (lost[:, 2] == 0).all() and (lost.sum(1) < phi.sum(1)).all()  # the others' water reaches farther
+
+
+def test_lloyd_potential_pays_the_front_buoy_of_a_channel_for_going_on():
+    """On the 9 × 1 m channel, two buoys at its west end (x = 0.5, 1) and the front one 1.5 m (3R) or more ahead:
+    eq. (5)-(6) pay the front one the same wherever it is along the channel (it overlaps no one); its potential
+    rises as it goes east, up to the centroid of its cell ((1 + x) / 2 + 9) / 2, which it passes at x = 6.3."""
+    from shapely.geometry import box
+
+    from replicate.world.geometry import water_grid
+
+    points = water_grid(box(0, 0, 9, 1), 0.25)
+    x = np.linspace(2.5, 6.0, 8)
+    pos = np.full((len(x), 3, 2), 0.5)
+    pos[:, 1, 0], pos[:, 2, 0] = 1.0, x
+    front = rewards.lloyd_potential(pos, None, points, 0.5)[:, 2]
+    assert (np.diff(front) > 0).all()
+    beyond = pos.copy()
+    beyond[:, 2, 0] = 8.0  # past its centroid: it is paid to come back
+    assert (rewards.lloyd_potential(beyond, None, points, 0.5)[:, 2] < front[-1]).all()

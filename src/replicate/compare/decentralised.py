@@ -18,12 +18,12 @@ point stays where it is.
 from __future__ import annotations
 
 import numpy as np
-import shapely
 from numba import njit
 
 from replicate.compare.baselines import Policy
 from replicate.core.studies import LloydConfig
 from replicate.world.env import CoverageEnv
+from replicate.world.geometry import grid_in, water_grid
 from replicate.world.sensors import neighbours
 
 
@@ -33,21 +33,11 @@ class Raster:
     read from the grid, not searched."""
 
     def __init__(self, region, spacing: float):
-        minx, miny, maxx, maxy = region.bounds
-        xs, ys = np.arange(minx + spacing / 2, maxx, spacing), np.arange(miny + spacing / 2, maxy, spacing)
-        if not len(xs) or not len(ys):  # a lake narrower than the spacing: no point, every buoy stays put
-            xs, ys = np.array([minx]), np.array([miny])
-        gx, gy = np.meshgrid(np.arange(len(xs)), np.arange(len(ys)), indexing="ij")
-        inside = shapely.contains_xy(region, xs[gx], ys[gy])
-        self.points = np.stack([xs[gx[inside]], ys[gy[inside]]], axis=1)
-        self.index = np.full(gx.shape, -1, np.int64)
+        xs, ys, inside = grid_in(region, spacing)  # a lake narrower than the spacing: one point, maybe dry
+        self.points = water_grid(region, spacing)
+        self.index = np.full(inside.shape, -1, np.int64)
         self.index[inside] = np.arange(inside.sum())
         self.origin, self.spacing = np.array([xs[0], ys[0]]), float(spacing)
-
-
-def water_points(region, spacing: float) -> np.ndarray:
-    """The raster's points: grid points ``spacing`` apart inside the lake → [M, 2]."""
-    return Raster(region, spacing).points
 
 
 @njit(cache=True)

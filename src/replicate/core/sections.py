@@ -318,6 +318,8 @@ class GeneralConfig:
     sensors: SensorsConfig
     learner: SharedLearnerConfig
     suite: SuiteConfig
+    lloyd_shaping: NonNegative = 0.0  # weight of the potential-based shaping by Lloyd's cost of each buoy's cell
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("lloyd_shaping",)  # left out of a run's identity at its default
 
     @model_validator(mode="after")
     def check(self):

@@ -16,7 +16,7 @@ from shapely.ops import nearest_points
 
 from replicate.core.sections import CoverageConfig, CRRewardConfig, SensorsConfig, SWRewardConfig, WorldConfig
 from replicate.world import rewards, sensors
-from replicate.world.geometry import CoverageGeometry, coverage_fraction_exact
+from replicate.world.geometry import CoverageGeometry, coverage_fraction_exact, water_grid
 from replicate.world.regions import Region, RegionError, signed_distance
 from replicate.world.shore import shoreline, wall_step
 from replicate.world.units import top_speed
@@ -39,10 +39,13 @@ STARTS = ("corner", "opposite", "random")  # config.StartsConfig.start
 class Pay:
     """What a learner is paid each step beside the paper's reward: the reward × ``scale``, less ``shore_penalty``
     for each buoy in service resting on the shore (a shore ray shorter than ``sensors.ON_SHORE``; it needs the
-    local observation)."""
+    local observation), plus ``lloyd`` × the shaping γΦ_i(s') − Φ_i(s) by Lloyd's locational cost of each buoy's
+    cell (``rewards.lloyd_potential``; γ the learner's ``gamma``)."""
 
     scale: float = 1.0
     shore_penalty: float = 0.0
+    lloyd: float = 0.0
+    gamma: float = 1.0
 
 
 @dataclass
@@ -158,6 +161,7 @@ class CoverageEnv:
         # first: it refuses a region too narrow, naming it
         self.patch = start_patch(region.polygon, world.start_patch, name=region.name, scale=region.scale)
         self._geometry = None  # the fast path's tables: built below for a reward, on first use without one
+        self._water_points = None  # the water's points for Lloyd's potential (``Pay.lloyd``), on first use
         self.start = "corner"  # where ``reset`` releases the buoys (``STARTS``)
         self.alive: np.ndarray | None = None  # [E, N] bool once a buoy is lost (``lose``); None: all alive
         self.wall = wall
@@ -173,6 +177,7 @@ class CoverageEnv:
         self.pos = np.zeros((n_envs, self.n_agents, 2))
         self.vel = np.zeros((n_envs, self.n_agents, 2))
         self.t = 0
+        self.potential = None  # Lloyd's potential Φ [E, N] at the current positions, with ``Pay.lloyd``
 
     @property
     def geometry(self) -> CoverageGeometry:
@@ -230,6 +235,7 @@ class CoverageEnv:
         self.ground_vel = np.zeros_like(self.pos)
         self.alive = None
         self.t = 0
+        self.potential = self.lloyd_potential()
         return self.observe()
 
     def lose(self, count: int, rng: np.random.Generator) -> None:
@@ -241,6 +247,7 @@ class CoverageEnv:
         for e in range(self.n_envs):  # E draws of a few indices: the loop is over environments, not agents
             alive[e, rng.choice(np.flatnonzero(alive[e]), size=count, replace=False)] = False
         self.alive = alive  # ``integrate`` holds the lost buoys still from here on
+        self.potential = self.lloyd_potential()  # a loss is not the survivors' doing: their cells grow unpaid
 
     def live(self, x: np.ndarray) -> np.ndarray:
         """The rows of the buoys still in service of a per-buoy array [E, N, ...] → [E, N_live, ...] (every
@@ -329,7 +336,19 @@ class CoverageEnv:
         if self.pay.shore_penalty:
             live = np.ones((self.n_envs, self.n_agents), bool) if self.alive is None else self.alive
             pay = pay - self.pay.shore_penalty * (sensors.on_shore(obs, self.shore_rays) & live)
+        if self.pay.lloyd:  # potential-based (Ng et al. 1999): the sum over an episode telescopes
+            before, self.potential = self.potential, self.lloyd_potential()
+            pay = pay + self.pay.lloyd * (self.pay.gamma * self.potential - before)
         return pay
+
+    def lloyd_potential(self) -> np.ndarray | None:
+        """Φ [E, N] at the current positions with ``Pay.lloyd`` (``rewards.lloyd_potential`` over the water's
+        points R/2 apart), else None."""
+        if not self.pay.lloyd:
+            return None
+        if self._water_points is None:
+            self._water_points = water_grid(self.region.polygon, self.coverage.radius / 2)
+        return rewards.lloyd_potential(self.pos, self.alive, self._water_points, self.coverage.radius)
 
     def reward(self) -> tuple[np.ndarray, np.ndarray]:
         """The configured reward at the current positions: ([E, N], union area [E] or NaN). After a loss the

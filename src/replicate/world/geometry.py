@@ -86,6 +86,25 @@ def coverage_fraction_exact(region: Polygon, xy: np.ndarray, radius: float, edge
     return union_area_exact(region, xy, radius, edges) / region.area
 
 
+def grid_in(region: Polygon, spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Grid points ``spacing`` apart over ``region``'s box, the first half a spacing in from its lower-left
+    corner: (xs [GX], ys [GY], inside [GX, GY], True where the point lies in the region). A region narrower than
+    the spacing gets one point, at that corner."""
+    minx, miny, maxx, maxy = region.bounds
+    xs, ys = np.arange(minx + spacing / 2, maxx, spacing), np.arange(miny + spacing / 2, maxy, spacing)
+    if not len(xs) or not len(ys):
+        xs, ys = np.array([minx]), np.array([miny])
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    return xs, ys, shapely.contains_xy(region, gx, gy)
+
+
+def water_grid(region: Polygon, spacing: float) -> np.ndarray:
+    """The grid points of ``grid_in`` inside the region → [M, 2]."""
+    xs, ys, inside = grid_in(region, spacing)
+    gx, gy = np.nonzero(inside)
+    return np.stack([xs[gx], ys[gy]], axis=1)
+
+
 def minkowski(region: Polygon, offsets: np.ndarray) -> tuple[Polygon, Polygon]:
     """(Reg ⊖ K, Reg ⊕ K) for a centrally symmetric convex K given by its vertices ``offsets`` [V, 2].
 

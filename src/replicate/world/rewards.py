@@ -61,6 +61,24 @@ def overall_reward(cover: np.ndarray, union_term: np.ndarray, c1: float, c2: flo
     return c1 * cover + c2 * union_term
 
 
+def lloyd_potential(pos: np.ndarray, alive: np.ndarray | None, points: np.ndarray, radius: float) -> np.ndarray:
+    """Φ_i = −(1/(P R²)) Σ_{q ∈ V_i} |q − p_i|²: Lloyd's locational cost of buoy i's Voronoi cell V_i over the
+    water's P points q, negated, in units of R² per point. Σ_i Φ_i is minus the mean squared distance from the
+    water to its nearest buoy, the cost Lloyd's algorithm descends, and ∂Φ_i/∂p_i is its gradient in p_i: a buoy
+    is paid for moving toward its cell's centroid, as the front buoy of a channel whose next buoy is more than 2R
+    behind is by nothing in eq. (5)-(6). pos [E, N, 2], alive [E, N] (None: all; a lost buoy has no cell and
+    Φ = 0), points [P, 2] → [E, N]."""
+    e, n = pos.shape[:2]
+    d2 = np.square(points[None, :, None, :] - pos[:, None, :, :]).sum(-1)  # [E, P, N]
+    if alive is not None:
+        d2 = np.where(alive[:, None, :], d2, np.inf)
+    near = d2.argmin(axis=-1)  # [E, P]: each point's buoy
+    cost = np.take_along_axis(d2, near[..., None], axis=-1)[..., 0]
+    cell = (np.arange(e)[:, None] * n + near).ravel()
+    total = np.bincount(cell, weights=cost.ravel(), minlength=e * n).reshape(e, n)
+    return -total / (len(points) * radius**2)
+
+
 def cr_reward(terms: CoverTerms, union_term: np.ndarray, cfg: CRRewardConfig, xy: np.ndarray) -> np.ndarray:
     """CR-MARL per-agent reward Overall_Reward(a) (SPEC §4): eq. (6) over eq. (5). → [E, N].
 
