@@ -28,11 +28,14 @@ from replicate.learn.train import CURVE
 from replicate.pipeline.evaluation import not_in_matrix
 from replicate.toolkit import plots
 from replicate.toolkit.animate import animate_run, animate_trace
+from replicate.toolkit.plan import Mission, plan_on
+from replicate.toolkit.plan_map import plan_map
 from replicate.world.coverage import coverage_ceiling
 from replicate.world.env import start_patch
 from replicate.world.geometry import coverage_fraction_exact
 from replicate.world.osm import describe_source
 from replicate.world.regions import make_region, region_from_file
+from replicate.world.units import BOB_SPEED
 
 
 @dataclass
@@ -208,6 +211,7 @@ def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[P
     written = [plots.general_lakes(panels, c.radius, c.edges, fig / "fig_general_lakes.png",
                                    f"The general policy on lakes it never trained on ({start} starts; "
                                    "crosses: where the buoys started)")]
+    written += [plan_figure(params, policy, name, fig) for name in shown]
     bedok, buoys = make_region("bedok", params.regions["bedok"], params.world.region_area), params.world.n_agents
     lose = suite_lose(su, buoys)
     trace, alive = general_episode(policy, bedok, params, buoys, "corner", lose=lose)
@@ -221,6 +225,16 @@ def general_figures(params, policy: Path, suite_path: Path, fig: Path) -> list[P
     written.append(animate_trace(bedok.polygon, trace, alive, c.radius, c.edges, "general policy, Bedok, drift",
                                  fig / "anim_general_current.gif", flow=np.asarray(flow)))
     return written
+
+
+def plan_figure(params, policy: Path, lake: str, fig: Path) -> Path:
+    """``replicate plan`` on a suite lake with the paper's fleet at the suite's density, from the corner patch,
+    buoys of the 1 m/s top speed: the policy against tuned and decentralised Lloyd and the clairvoyant planner,
+    coverage against minutes (``fig_general_plan_LAKE.png``)."""
+    n = params.world.n_agents
+    region = at_density(*suite_lake(params, lake), n)
+    mission = Mission(n, params.coverage.radius * region.scale, BOB_SPEED)
+    return plan_map(plan_on(region, params, mission, policy), fig / f"fig_general_plan_{lake}.png")
 
 
 def gallery(paths, notebook_dir: str) -> str:
