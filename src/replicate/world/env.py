@@ -39,13 +39,12 @@ STARTS = ("corner", "opposite", "random")  # config.StartsConfig.start
 class Pay:
     """What a learner is paid each step beside the paper's reward: the reward × ``scale``, less ``shore_penalty``
     for each buoy in service resting on the shore (a shore ray shorter than ``sensors.ON_SHORE``; it needs the
-    local observation), plus ``lloyd`` × the shaping γΦ_i(s') − Φ_i(s) by Lloyd's locational cost of each buoy's
-    cell (``rewards.lloyd_potential``; γ the learner's ``gamma``)."""
+    local observation), plus ``lloyd`` × Φ_i(s') − Φ_i(s), what the step took off Lloyd's locational cost of each
+    buoy's cell (``rewards.lloyd_potential``)."""
 
     scale: float = 1.0
     shore_penalty: float = 0.0
     lloyd: float = 0.0
-    gamma: float = 1.0
 
 
 @dataclass
@@ -336,9 +335,9 @@ class CoverageEnv:
         if self.pay.shore_penalty:
             live = np.ones((self.n_envs, self.n_agents), bool) if self.alive is None else self.alive
             pay = pay - self.pay.shore_penalty * (sensors.on_shore(obs, self.shore_rays) & live)
-        if self.pay.lloyd:  # potential-based (Ng et al. 1999): the sum over an episode telescopes
+        if self.pay.lloyd:  # the sum over an episode telescopes to Φ(s_T) − Φ(s_0)
             before, self.potential = self.potential, self.lloyd_potential()
-            pay = pay + self.pay.lloyd * (self.pay.gamma * self.potential - before)
+            pay = pay + self.pay.lloyd * (self.potential - before)
         return pay
 
     def lloyd_potential(self) -> np.ndarray | None:
