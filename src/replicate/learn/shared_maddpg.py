@@ -88,8 +88,9 @@ class SharedActor(nn.Module):
         if self.hops:
             pre = self.net(obs, pos, live) * live[..., None]
         else:
-            pre = obs.new_zeros(live.shape + (2,))
-            pre[live] = self.net(obs[live])
+            mine = self.net(obs[live])  # [L, act_dim]
+            pre = mine.new_zeros(live.shape + mine.shape[-1:])
+            pre[live] = mine
         return torch.tanh(pre), pre
 
 
