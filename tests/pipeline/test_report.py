@@ -273,3 +273,20 @@ def test_a_lake_and_fleet_has_one_best_layout_whatever_the_cell():
     assert [b["coverage"]["mean"] for b in limits] == [0.72, 0.72, 0.55]
     assert limits[0]["from_policy"] and not limits[2]["from_policy"]
     assert cells[0]["baselines"]["best_layout"]["coverage"]["mean"] == 0.70  # the suite's cells are not changed
+
+
+def test_the_report_lists_each_compared_change_with_its_verdict():
+    """``tried_section``: one row per ``replicate compare`` record, its gain with the interval over seeds, the
+    probability of improvement and whether the rule kept it; nothing without records."""
+    from replicate.pipeline.report.general import tried_section
+
+    def record(delta, keep):
+        return {"verdict": {"difference": {"delta": delta, "lo": delta - 0.01, "hi": delta + 0.01}, "keep": keep,
+                            "probability_of_improvement": {"p": 0.5}},
+                "scores": {**{f"baseline/{s}": 1.0 for s in range(8)}, **{f"candidate/{s}": 1.0 for s in range(8)}}}
+
+    lines = tried_section({"wider": record(0.02, "candidate"), "deeper": record(-0.003, "baseline")})
+    rows = [line for line in lines if line.startswith("| deeper") or line.startswith("| wider")]
+    assert rows == ["| deeper | 8 | -0.0030 [-0.0130, +0.0070] | 0.50 | no |",
+                    "| wider | 8 | +0.0200 [+0.0100, +0.0300] | 0.50 | yes |"]
+    assert tried_section({}) == []

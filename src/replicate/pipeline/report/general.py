@@ -288,6 +288,25 @@ def share_table(params, cells: list[dict]) -> list[str]:
             "found can bring a cell into that bar)."]
 
 
+def tried_section(records: dict[str, dict]) -> list[str]:
+    """The changes of the general training measured on the yardstick (``replicate compare`` records, by name),
+    each with its gain over the standing baseline and the rule's verdict."""
+    if not records:
+        return []
+    lines = ["Changes of the general training measured on the yardstick lakes (`replicate compare`: tuning seeds, "
+             "the seed as the unit, the rule written before the seeds trained; the records in "
+             "`docs/comparisons/`, the reading in `docs/GENERAL.md`; a candidate whose first seeds collapsed is "
+             "there, with no record):", "",
+             "| change (record) | seeds a side | Δ coverage / lloyd_tuned [95 % interval over seeds] | "
+             "P(a candidate seed beats a baseline seed) | kept |", "|---|---|---|---|---|"]
+    for name, r in sorted(records.items()):
+        d, v = r["verdict"]["difference"], r["verdict"]
+        seeds = sum(k.startswith("candidate/") for k in r["scores"])
+        lines.append(f"| {name} | {seeds} | {d['delta']:+.4f} [{d['lo']:+.4f}, {d['hi']:+.4f}] | "
+                     f"{v['probability_of_improvement']['p']:.2f} | {'yes' if v['keep'] == 'candidate' else 'no'} |")
+    return [*lines, ""]
+
+
 def general_section(params, general: dict, summary: dict | None = None) -> list[str]:
     cells = one_limit(general["cells"])
     su = params.general.suite

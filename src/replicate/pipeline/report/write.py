@@ -13,7 +13,7 @@ import jinja2
 from replicate.core import artifacts
 from replicate.core.params import Cell, RegionKey
 from replicate.pipeline.report.claims import claims, comparisons, cpu_timed, sensitivity, targets
-from replicate.pipeline.report.general import general_section
+from replicate.pipeline.report.general import general_section, tried_section
 from replicate.pipeline.report.rules import fmt, fmt_t, span
 from replicate.pipeline.report.tables import (
     ablation_rows,
@@ -60,10 +60,14 @@ def robustness_context(params, summary: dict, regions: list[str]) -> dict:
 
 
 def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict[str, str], figures: list[str],
-                 out: str, stage_times: dict, general_path: str | None = None) -> str:
-    """Write ``REPORT.md`` to ``out`` from the pipeline's results → its text."""
+                 out: str, stage_times: dict, general_path: str | None = None,
+                 comparisons_dir: str | None = None) -> str:
+    """Write ``REPORT.md`` to ``out`` from the pipeline's results → its text; with ``comparisons_dir`` the
+    ``replicate compare`` records there (those with a verdict) are listed under the general policy."""
     summary, timing = read_json(summary_path), read_json(timing_path, {})
     general = read_json(general_path)
+    records = {p.stem: read_json(str(p)) for p in sorted(Path(comparisons_dir).glob("*.json"))} \
+        if comparisons_dir else {}
     tuning = {k: read_json(p) for k, p in tuning_paths.items() if Path(p).exists()}
     rules = params.report
     cells = [Cell.parse(k) for k in summary["runs"]]
@@ -81,7 +85,8 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
         "wall_timed": bool(timing) and not cpu_timed(timing.get("runs", [])),
         "budgets": budgets(params, tuning), "budget_confound": budget_confound(params, tuning),
         **robustness_context(params, summary, regions),
-        "general": general_section(params, general, summary) if general is not None else [],
+        "general": [*general_section(params, general, summary), *tried_section(
+            {k: r for k, r in records.items() if "verdict" in r})] if general is not None else [],
         "ablation": ablation_rows(summary, rules.margin), "ablation_seeds": ", ".join(map(str, params.ablation.seeds)),
         "runs": [(Cell.parse(key), r) for key, r in summary["runs"].items()],
         "baselines": [(*astuple(RegionKey.parse(key)), b) for key, b in sorted(summary["baselines"].items())],
