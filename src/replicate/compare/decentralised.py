@@ -23,7 +23,7 @@ from numba import njit
 from replicate.compare.baselines import Policy
 from replicate.core.studies import LloydConfig
 from replicate.world.env import CoverageEnv
-from replicate.world.geometry import grid_in, water_grid
+from replicate.world.geometry import grid_in, grid_points
 from replicate.world.sensors import neighbours
 
 
@@ -34,7 +34,7 @@ class Raster:
 
     def __init__(self, region, spacing: float):
         xs, ys, inside = grid_in(region, spacing)  # a lake narrower than the spacing: one point, maybe dry
-        self.points = water_grid(region, spacing)
+        self.points = grid_points(xs, ys, inside)  # the water's, read once
         self.index = np.full(inside.shape, -1, np.int64)
         self.index[inside] = np.arange(inside.sum())
         self.origin, self.spacing = np.array([xs[0], ys[0]]), float(spacing)

@@ -318,7 +318,7 @@ class GeneralConfig:
     sensors: SensorsConfig
     learner: SharedLearnerConfig
     suite: SuiteConfig
-    lloyd_shaping: NonNegative = 0.0  # weight of the potential-based shaping by Lloyd's cost of each buoy's cell
+    lloyd_shaping: NonNegative = 0.0  # weight of the pay for each step's progress of Lloyd's cost of each buoy's cell
     OPTIONAL: ClassVar[tuple[str, ...]] = ("lloyd_shaping",)  # left out of a run's identity at its default
 
     @model_validator(mode="after")

@@ -98,11 +98,15 @@ def grid_in(region: Polygon, spacing: float) -> tuple[np.ndarray, np.ndarray, np
     return xs, ys, shapely.contains_xy(region, gx, gy)
 
 
-def water_grid(region: Polygon, spacing: float) -> np.ndarray:
-    """The grid points of ``grid_in`` inside the region → [M, 2]."""
-    xs, ys, inside = grid_in(region, spacing)
+def grid_points(xs: np.ndarray, ys: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """The points of a grid (``grid_in``) where ``inside`` holds, x-major → [M, 2]."""
     gx, gy = np.nonzero(inside)
     return np.stack([xs[gx], ys[gy]], axis=1)
+
+
+def water_grid(region: Polygon, spacing: float) -> np.ndarray:
+    """The grid points of ``grid_in`` inside the region → [M, 2]."""
+    return grid_points(*grid_in(region, spacing))
 
 
 def minkowski(region: Polygon, offsets: np.ndarray) -> tuple[Polygon, Polygon]:
