@@ -19,11 +19,12 @@ from ..conftest import ROOT
 from ..world.test_sensors import points_inside
 
 COLUMNS = sensors.columns(4, 8, uncovered=True)
+RASTER_COLUMNS = sensors.columns(4, 8, uncovered=True, raster=5)
 
 
-def turned(g: np.ndarray, obs: np.ndarray) -> np.ndarray:
-    """g·o for observations [..., D] with ``COLUMNS``."""
-    index, sign = _signed_permutation(COLUMNS, g)
+def turned(g: np.ndarray, obs: np.ndarray, columns: list[str] = COLUMNS) -> np.ndarray:
+    """g·o for observations [..., D] with ``columns``."""
+    index, sign = _signed_permutation(columns, g)
     return obs[..., index] * sign
 
 
@@ -37,37 +38,42 @@ def test_d4_is_a_group_of_eight_orthogonal_maps():
 
 @pytest.mark.parametrize("lake", ["bedok", "island"])
 def test_a_turned_lake_turns_the_observation(regions, lake):
-    """Every sensor (velocity, neighbours and their masks, shore rays, uncovered water) of buoys in a lake turned
-    or mirrored by g reads g·o, where o is what they read before: the group acts on the columns as claimed."""
+    """Every sensor (velocity, neighbours and their masks, shore rays, uncovered water, the local raster) of buoys
+    in a lake turned or mirrored by g reads g·o, where o is what they read before: the group acts on the columns
+    as claimed."""
     water = regions["bedok"].polygon if lake == "bedok" else box(0, 0, 3, 3).difference(box(1.2, 1.2, 1.8, 1.8))
     rng = np.random.default_rng(3)
     pos = points_inside(water, 3 * 10, rng).reshape(3, 10, 2)
     vel = rng.normal(size=(3, 10, 2))
     alive = rng.uniform(size=(3, 10)) > 0.2
     directions = sensors.ray_directions(8)
+    wet = np.array([c.startswith("raster_water_") for c in RASTER_COLUMNS])
 
     def observe(poly, p, v):
+        raster = (sensors.WaterMask.for_raster(poly, 5, 2.0), sensors.raster_offsets(5, 2.0))
         return sensors.local_observation(p, v, sensors.shore_segments(poly), directions, 4, 1.5, 2.0, alive,
-                                         (0.25, 0.5, 0.75), 0.5)
+                                         (0.25, 0.5, 0.75), 0.5, raster)
 
     before = observe(water, pos, vel)
+    assert before.shape[-1] == len(RASTER_COLUMNS) and 0 < before[..., wet].mean() < 1
     for g in d4():
         after = observe(affinity.affine_transform(water, [*g[0], *g[1], 0, 0]), pos @ g.T, vel @ g.T)
-        np.testing.assert_allclose(after, turned(g, before), atol=1e-5)
-    assert not np.allclose(turned(d4()[1], before), before), "a quarter turn changes what the buoys read"
+        np.testing.assert_allclose(after, turned(g, before, RASTER_COLUMNS), atol=1e-5)
+    assert not np.allclose(turned(d4()[1], before, RASTER_COLUMNS), before), "a quarter turn changes the readings"
 
 
-def test_the_symmetric_actor_turns_its_pushes_with_the_world():
+@pytest.mark.parametrize("columns", [COLUMNS, RASTER_COLUMNS], ids=["sensors", "raster"])
+def test_the_symmetric_actor_turns_its_pushes_with_the_world(columns):
     """μ̄(g·o) = g μ̄(o) for every g of D4 (after the tanh too), averaged over the group or run in each
-    observation's canonical frame; an ordinary actor does not."""
-    obs = torch.randn(50, len(COLUMNS), generator=torch.Generator().manual_seed(0))
+    observation's canonical frame, with the local raster read through its CNN too; an ordinary actor does not."""
+    obs = torch.randn(50, len(columns), generator=torch.Generator().manual_seed(0))
     for symmetry, equivariant in (("d4", True), ("d4_frame", True), ("none", False)):
         torch.manual_seed(1)
-        actor = SharedActor(len(COLUMNS), 2, 32, symmetry, COLUMNS)
+        actor = SharedActor(len(columns), 2, 32, symmetry, columns)
         with torch.no_grad():
             act = actor(obs)[0]
-            errors = [(actor(torch.as_tensor(turned(g, obs.numpy())).float())[0] - act @ torch.as_tensor(g.T).float())
-                      .abs().max().item() for g in d4()]
+            errors = [(actor(torch.as_tensor(turned(g, obs.numpy(), columns)).float())[0]
+                       - act @ torch.as_tensor(g.T).float()).abs().max().item() for g in d4()]
         assert (max(errors) < 1e-5) == equivariant, (symmetry, errors)
 
 

@@ -219,6 +219,31 @@ def test_the_uncovered_water_sensor_passes_the_api_and_seed_tests():
     assert shares.min() < 1.0 and shares.max() == 1.0  # buoys covering each other's water, and open water
 
 
+def test_the_local_raster_passes_the_api_and_seed_tests():
+    """``sensors.raster``: 2 × 5 × 5 more columns, each 0 or 1, through losses and a drift; some cells dry, some
+    covered by another buoy."""
+    from replicate.core.sections import SensorsConfig
+
+    def make():
+        return CoverageParallelEnv("bedok", observation="local", shore="wall", episode_length=20, start="random",
+                                   lose=3, current=(0.6, 0.0),
+                                   sensors_config=SensorsConfig(velocity="ground", raster=5))
+
+    parallel_api_test(make(), num_cycles=40)
+    parallel_seed_test(make)
+    env = make()
+    assert env.observation_space("buoy_0").shape == (22 + 50,)
+    obs, _ = env.reset(seed=1)
+    cells = []
+    while env.agents:
+        assert all(env.observation_space(a).contains(o) for a, o in obs.items())
+        cells += [o[22:] for o in obs.values()]
+        obs, *_ = env.step({a: env.action_space(a).sample() for a in env.agents})
+    cells = np.stack(cells)
+    assert set(np.unique(cells)) == {0.0, 1.0}
+    assert cells[:, :25].min() == 0 and cells[:, :25].max() == 1 and cells[:, 25:].max() == 1
+
+
 def test_a_coverage_radius_is_resolved_with_as_many_cells_as_the_papers(params):
     """A small radius as finely as the paper's; a large one (a lake kept in metres, R = 25 m) as coarsely: its
     lookup grids would otherwise need 64.8 GiB."""

@@ -228,3 +228,35 @@ def test_lloyd_shaping_pays_the_progress_of_each_cell(params, regions):
         added += b.pay - a.pay
     np.testing.assert_allclose(added, 2.0 * (shaped.potential - start), atol=1e-12)
     assert plain.potential is None and np.abs(added).max() > 0
+
+
+def test_lloyd_move_pays_the_first_order_of_each_buoys_own_move(params, regions):
+    """``Pay.lloyd_move`` adds β ∂Φ_i/∂p_i · Δp_i: for a small move of one buoy it is what the move took off the
+    fleet's Lloyd cost (Σ_j Φ_j, to first order), the others are paid nothing for it, and the pull points from each
+    buoy toward its cell's centroid."""
+    from replicate.world import rewards
+
+    world = dataclasses.replace(params.world, n_agents=4, episode_length=10)
+    options = {"n_envs": 2, "reward": "cr", "cr": params.cr_reward, "observation": "local", "wall": True,
+               "union_credit": "difference"}
+    plain = CoverageEnv(regions["rectangle"], world, params.coverage, pay=Pay(0.01), **options)
+    shaped = CoverageEnv(regions["rectangle"], world, params.coverage, pay=Pay(0.01, lloyd_move=2.0), **options)
+    for env in (plain, shaped):
+        env.reset(seed=3, start="corner")
+    points, radius = shaped.water_points, params.coverage.radius
+    cost = rewards.lloyd_potential(shaped.pos, None, points, radius).sum(-1)  # [E]
+    push = np.zeros((2, 4, 2))
+    push[:, 1] = [0.1, 0.03]  # buoy 1 alone moves, a little
+    a, b = plain.step(push), shaped.step(push)
+    np.testing.assert_array_equal(a.reward, b.reward)
+    added = b.pay - a.pay
+    np.testing.assert_array_equal(added[:, [0, 2, 3]], 0.0)
+    gained = rewards.lloyd_potential(shaped.pos, None, points, radius).sum(-1) - cost
+    np.testing.assert_allclose(added[:, 1], 2.0 * gained, rtol=0.05)
+    assert np.abs(added[:, 1]).max() > 0.1
+    pull = rewards.lloyd_pull(shaped.pos, None, points, radius)
+    cell, _ = rewards.lloyd_cells(shaped.pos, None, points)
+    for i in range(4):
+        centroid = points[cell[0] == i].mean(axis=0)
+        direction = centroid - shaped.pos[0, i]
+        np.testing.assert_allclose(pull[0, i] / np.linalg.norm(pull[0, i]), direction / np.linalg.norm(direction))

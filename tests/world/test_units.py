@@ -79,10 +79,10 @@ def test_one_trajectory_in_two_unit_systems(params, regions):
 
 
 def test_every_observation_column_has_a_unit(params):
-    columns = observation_columns("local", SensorsConfig(uncovered=(0.5,), ray_range=2.0))
+    columns = observation_columns("local", SensorsConfig(uncovered=(0.5,), ray_range=2.0, raster=3))
     units = {c: column_unit(c) for c in columns}
     assert units["vx"] == "m/s" and units["neighbour0_dx"] == "m" and units["shore_90deg"] == "m"
-    assert units["neighbour3_heard"] == "1" and units["uncovered_0deg"] == "1"
+    assert units["neighbour3_heard"] == "1" and units["uncovered_0deg"] == "1" and units["raster_water_-1_1"] == "1"
     u = Units.of(params.world, params.coverage, radius_m=10.0, speed_ms=2.0)
     obs = np.random.default_rng(0).normal(size=(4, len(columns)))
     np.testing.assert_allclose(from_simulation(to_simulation(obs, columns, u), columns, u), obs)

@@ -112,7 +112,8 @@ class MADDPGConfig:
 class SensorsConfig:
     """What a buoy senses with ``observation: local`` (``sensors.py``): its velocity, the ``neighbours`` nearest
     buoys it hears within ``comm_range`` m, the shore along ``rays`` compass directions up to ``ray_range`` m and,
-    with ``uncovered``, the share of water along each ray that no buoy it hears covers."""
+    with ``uncovered``, the share of water along each ray that no buoy it hears covers and, with ``raster``, a small
+    map of the water and of what the buoys it hears cover on ``raster`` × ``raster`` cells around it."""
 
     neighbours: Annotated[Int, In(1, MAX_AGENTS)] = 4
     comm_range: Positive = 2.0
@@ -120,15 +121,19 @@ class SensorsConfig:
     ray_range: Positive = 2.0
     velocity: Literal["water", "ground"] = "water"  # through the water (a log) or over the ground (GPS)
     uncovered: tuple[Num, ...] = ()  # m: radii of ``uncovered_water``'s points along each ray; () = no such sensor
+    raster: Annotated[Int, In(0, 31)] = 0  # cells a side of ``local_raster``'s square of half-side ray_range; 0 = none
     # Values added after general runs were trained: at their default they are left out of a run's identity
     # (``runs.general_identity``), so adding one keeps the finished runs valid.
-    OPTIONAL: ClassVar[tuple[str, ...]] = ("uncovered",)
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("uncovered", "raster")
 
     @model_validator(mode="after")
     def check(self):
         if any(not 0 < r < self.ray_range for r in self.uncovered):
             raise ConfigError(f"sensors uncovered radii must lie in (0, ray_range = {self.ray_range}) m (water is "
                               f"known only short of it), got {list(self.uncovered)}")
+        if self.raster and (self.raster < 3 or self.raster % 2 == 0):
+            raise ConfigError(f"sensors raster: an odd number of cells a side, at least 3 (the buoy at the centre "
+                              f"cell's centre), or 0 for none; got {self.raster}")
         return self
 
 
@@ -319,7 +324,8 @@ class GeneralConfig:
     learner: SharedLearnerConfig
     suite: SuiteConfig
     lloyd_shaping: NonNegative = 0.0  # weight of the pay for each step's progress of Lloyd's cost of each buoy's cell
-    OPTIONAL: ClassVar[tuple[str, ...]] = ("lloyd_shaping",)  # left out of a run's identity at its default
+    lloyd_move: NonNegative = 0.0  # weight of the pay for what each buoy's own move took off Lloyd's cost (1st order)
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("lloyd_shaping", "lloyd_move")  # left out of a run's identity at default
 
     @model_validator(mode="after")
     def check(self):

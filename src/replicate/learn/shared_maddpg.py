@@ -30,24 +30,16 @@ from torch import nn
 
 from replicate.core.sections import SensorsConfig, SharedLearnerConfig
 from replicate.learn.messages import MessageActor
+from replicate.learn.networks import mlp, observation_net
 from replicate.learn.replay import Batch
 from replicate.learn.symmetry import symmetric
-
-
-def mlp(sizes: list[int]) -> nn.Sequential:
-    """ReLU MLP with a linear last layer."""
-    layers: list[nn.Module] = []
-    for k, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
-        layers.append(nn.Linear(a, b))
-        if k < len(sizes) - 2:
-            layers.append(nn.ReLU())
-    return nn.Sequential(*layers)
 
 
 class SharedActor(nn.Module):
     """a_i = tanh(μ(o_i)) for every buoy: obs [..., obs_dim] → (action, pre-tanh) [..., act_dim]. With a
     ``symmetry`` group (``symmetry.symmetric``; ``columns`` name the observation's), μ is the MLP averaged over
-    the group's turns of the observation, and the policy turns with the world. With ``hops`` ≥ 1, μ is a
+    the group's turns of the observation, and the policy turns with the world; with a local raster among the
+    columns, μ reads it through a small CNN (``networks.observation_net``). With ``hops`` ≥ 1, μ is a
     ``messages.MessageActor`` over the buoys each hears (``sensors``: its K nearest within the range), which
     reads whole fleets: ``fleet``."""
 
@@ -60,7 +52,7 @@ class SharedActor(nn.Module):
             self.net = MessageActor(obs_dim, act_dim, hidden, hops, columns or [], sensors.neighbours,
                                     sensors.comm_range, canonical=symmetry == "d4_frame")
         else:
-            self.net = symmetric(mlp([obs_dim, hidden, hidden, act_dim]), columns or [], symmetry)
+            self.net = symmetric(observation_net(columns or [], obs_dim, hidden, act_dim), columns or [], symmetry)
 
     @classmethod
     def of(cls, obs_dim: int, act_dim: int, cfg: SharedLearnerConfig, columns: list[str] | None = None,

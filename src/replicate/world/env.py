@@ -28,7 +28,7 @@ def observation_columns(observation: str, sensors_config: SensorsConfig | None =
     """The names of an observation's columns, in order (the exported policy's layout)."""
     if observation == "local":
         sc = sensors_config or SensorsConfig()
-        return sensors.columns(sc.neighbours, sc.rays, bool(sc.uncovered))
+        return sensors.columns(sc.neighbours, sc.rays, bool(sc.uncovered), sc.raster)
     return ["x", "y"] if observation == "position" else ["x", "y", "vx", "vy"]
 
 
@@ -40,11 +40,13 @@ class Pay:
     """What a learner is paid each step beside the paper's reward: the reward × ``scale``, less ``shore_penalty``
     for each buoy in service resting on the shore (a shore ray shorter than ``sensors.ON_SHORE``; it needs the
     local observation), plus ``lloyd`` × Φ_i(s') − Φ_i(s), what the step took off Lloyd's locational cost of each
-    buoy's cell (``rewards.lloyd_potential``)."""
+    buoy's cell (``rewards.lloyd_potential``), plus ``lloyd_move`` × ∂Φ_i/∂p_i(s) · Δp_i, what the buoy's own move
+    took off the fleet's cost, to first order (``rewards.lloyd_pull``)."""
 
     scale: float = 1.0
     shore_penalty: float = 0.0
     lloyd: float = 0.0
+    lloyd_move: float = 0.0
 
 
 @dataclass
@@ -157,10 +159,15 @@ class CoverageEnv:
         if observation == "local":  # the shore's edges and the rays' directions, once
             self.shore_edges = sensors.ShoreGrid(sensors.shore_segments(region.polygon))
             self.ray_directions = sensors.ray_directions(self.sensor_config.rays)
+        self.raster = None  # the water mask and the cells' offsets of the local raster, with ``SensorsConfig.raster``
+        if observation == "local" and self.sensor_config.raster:
+            sc = self.sensor_config
+            self.raster = (sensors.WaterMask.for_raster(region.polygon, sc.raster, sc.ray_range),
+                           sensors.raster_offsets(sc.raster, sc.ray_range))
         # first: it refuses a region too narrow, naming it
         self.patch = start_patch(region.polygon, world.start_patch, name=region.name, scale=region.scale)
         self._geometry = None  # the fast path's tables: built below for a reward, on first use without one
-        self._water_points = None  # the water's points for Lloyd's potential (``Pay.lloyd``), on first use
+        self._water_points = None  # the water's points for Lloyd's cost (``Pay.lloyd``, ``lloyd_move``), on first use
         self.start = "corner"  # where ``reset`` releases the buoys (``STARTS``)
         self.alive: np.ndarray | None = None  # [E, N] bool once a buoy is lost (``lose``); None: all alive
         self.wall = wall
@@ -177,6 +184,7 @@ class CoverageEnv:
         self.vel = np.zeros((n_envs, self.n_agents, 2))
         self.t = 0
         self.potential = None  # Lloyd's potential Φ [E, N] at the current positions, with ``Pay.lloyd``
+        self.pull = None  # ∂Φ_i/∂p_i [E, N, 2] at the current positions, with ``Pay.lloyd_move``
 
     @property
     def geometry(self) -> CoverageGeometry:
@@ -234,7 +242,7 @@ class CoverageEnv:
         self.ground_vel = np.zeros_like(self.pos)
         self.alive = None
         self.t = 0
-        self.potential = self.lloyd_potential()
+        self.potential, self.pull = self.lloyd_potential(), self.lloyd_pull()
         return self.observe()
 
     def lose(self, count: int, rng: np.random.Generator) -> None:
@@ -247,6 +255,7 @@ class CoverageEnv:
             alive[e, rng.choice(np.flatnonzero(alive[e]), size=count, replace=False)] = False
         self.alive = alive  # ``integrate`` holds the lost buoys still from here on
         self.potential = self.lloyd_potential()  # a loss is not the survivors' doing: their cells grow unpaid
+        self.pull = self.lloyd_pull()
 
     def live(self, x: np.ndarray) -> np.ndarray:
         """The rows of the buoys still in service of a per-buoy array [E, N, ...] → [E, N_live, ...] (every
@@ -260,13 +269,14 @@ class CoverageEnv:
     def observe(self) -> np.ndarray:
         """Own position (paper), own position and velocity, or the local sensors (``sensors.local_observation``:
         velocity, the buoys heard, the shore's distance along rays and, with ``SensorsConfig.uncovered``, the
-        uncovered water along them). → [E, N, obs_dim] float32."""
+        uncovered water along them, with ``SensorsConfig.raster`` the map around the buoy). → [E, N, obs_dim]
+        float32."""
         if self.observation == "local":
             sc = self.sensor_config
             vel = self.ground_vel if sc.velocity == "ground" else self.vel
             return sensors.local_observation(self.pos, vel, self.shore_edges, self.ray_directions,
                                              sc.neighbours, sc.comm_range, sc.ray_range, self.alive,
-                                             sc.uncovered, self.coverage.radius)
+                                             sc.uncovered, self.coverage.radius, self.raster)
         obs = self.pos if self.observation == "position" else np.concatenate([self.pos, self.vel], axis=-1)
         return obs.astype(np.float32)
 
@@ -338,6 +348,9 @@ class CoverageEnv:
         if self.pay.lloyd:  # the sum over an episode telescopes to Φ(s_T) − Φ(s_0)
             before, self.potential = self.potential, self.lloyd_potential()
             pay = pay + self.pay.lloyd * (self.potential - before)
+        if self.pay.lloyd_move:  # the pull at s times the buoy's displacement over the ground, s to s'
+            before, self.pull = self.pull, self.lloyd_pull()
+            pay = pay + self.pay.lloyd_move * (before * self.ground_vel * self.world.dt).sum(-1)
         return pay
 
     def lloyd_potential(self) -> np.ndarray | None:
@@ -345,9 +358,21 @@ class CoverageEnv:
         points R/2 apart), else None."""
         if not self.pay.lloyd:
             return None
+        return rewards.lloyd_potential(self.pos, self.alive, self.water_points, self.coverage.radius)
+
+    def lloyd_pull(self) -> np.ndarray | None:
+        """∂Φ_i/∂p_i [E, N, 2] at the current positions with ``Pay.lloyd_move`` (``rewards.lloyd_pull``), else
+        None."""
+        if not self.pay.lloyd_move:
+            return None
+        return rewards.lloyd_pull(self.pos, self.alive, self.water_points, self.coverage.radius)
+
+    @property
+    def water_points(self) -> np.ndarray:
+        """The water's points R/2 apart that Lloyd's cost is measured over, built on first use."""
         if self._water_points is None:
             self._water_points = water_grid(self.region.polygon, self.coverage.radius / 2)
-        return rewards.lloyd_potential(self.pos, self.alive, self._water_points, self.coverage.radius)
+        return self._water_points
 
     def reward(self) -> tuple[np.ndarray, np.ndarray]:
         """The configured reward at the current positions: ([E, N], union area [E] or NaN). After a loss the

@@ -61,6 +61,18 @@ def overall_reward(cover: np.ndarray, union_term: np.ndarray, c1: float, c2: flo
     return c1 * cover + c2 * union_term
 
 
+def lloyd_cells(pos: np.ndarray, alive: np.ndarray | None, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each of the water's P points q's nearest buoy in service (its Voronoi cell) and its squared distance to it:
+    pos [E, N, 2], alive [E, N] (None: all), points [P, 2] → (cell [E, P] the flat index e·N + i, d² [E, P])."""
+    e, n = pos.shape[:2]
+    d2 = np.square(points[None, :, None, :] - pos[:, None, :, :]).sum(-1)  # [E, P, N]
+    if alive is not None:
+        d2 = np.where(alive[:, None, :], d2, np.inf)
+    near = d2.argmin(axis=-1)  # [E, P]: each point's buoy
+    cost = np.take_along_axis(d2, near[..., None], axis=-1)[..., 0]
+    return np.arange(e)[:, None] * n + near, cost
+
+
 def lloyd_potential(pos: np.ndarray, alive: np.ndarray | None, points: np.ndarray, radius: float) -> np.ndarray:
     """Φ_i = −(1/(P R²)) Σ_{q ∈ V_i} |q − p_i|²: Lloyd's locational cost of buoy i's Voronoi cell V_i over the
     water's P points q, negated, in units of R² per point. Σ_i Φ_i is minus the mean squared distance from the
@@ -69,14 +81,24 @@ def lloyd_potential(pos: np.ndarray, alive: np.ndarray | None, points: np.ndarra
     behind is by nothing in eq. (5)-(6). pos [E, N, 2], alive [E, N] (None: all; a lost buoy has no cell and
     Φ = 0), points [P, 2] → [E, N]."""
     e, n = pos.shape[:2]
-    d2 = np.square(points[None, :, None, :] - pos[:, None, :, :]).sum(-1)  # [E, P, N]
-    if alive is not None:
-        d2 = np.where(alive[:, None, :], d2, np.inf)
-    near = d2.argmin(axis=-1)  # [E, P]: each point's buoy
-    cost = np.take_along_axis(d2, near[..., None], axis=-1)[..., 0]
-    cell = (np.arange(e)[:, None] * n + near).ravel()
-    total = np.bincount(cell, weights=cost.ravel(), minlength=e * n).reshape(e, n)
+    cell, cost = lloyd_cells(pos, alive, points)
+    total = np.bincount(cell.ravel(), weights=cost.ravel(), minlength=e * n).reshape(e, n)
     return -total / (len(points) * radius**2)
+
+
+def lloyd_pull(pos: np.ndarray, alive: np.ndarray | None, points: np.ndarray, radius: float) -> np.ndarray:
+    """∂(Σ_j Φ_j)/∂p_i = ∂Φ_i/∂p_i = (2/(P R²)) Σ_{q ∈ V_i} (q − p_i) (``lloyd_potential``; the neighbours' cells
+    do not change the sum to first order, their shared edges being equidistant): how much buoy i's own move
+    takes off the fleet's locational cost, per metre, toward its cell's centroid and weighted by the cell's water.
+    Paid as pull · Δp_i, it is the first order of the difference credit of Lloyd's cost: what the buoy's move alone
+    did, not its neighbours'. Same arguments as ``lloyd_potential`` → [E, N, 2] in 1/m (a lost buoy: 0)."""
+    e, n = pos.shape[:2]
+    cell, _ = lloyd_cells(pos, alive, points)
+    flat = cell.ravel()
+    mass = np.bincount(flat, minlength=e * n).reshape(e, n)
+    first = np.stack([np.bincount(flat, weights=np.broadcast_to(points[:, k], cell.shape).ravel(),
+                                  minlength=e * n).reshape(e, n) for k in range(2)], axis=-1)  # Σ q over each cell
+    return 2.0 * (first - mass[..., None] * pos) / (len(points) * radius**2)
 
 
 def cr_reward(terms: CoverTerms, union_term: np.ndarray, cfg: CRRewardConfig, xy: np.ndarray) -> np.ndarray:

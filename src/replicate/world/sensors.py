@@ -237,19 +237,37 @@ def uncovered_water(pos: np.ndarray, shore: np.ndarray, directions: np.ndarray, 
     return out
 
 
-def columns(k: int, rays: int, uncovered: bool = False) -> list[str]:
-    """Names of ``local_observation``'s columns, in order (``uncovered``: with ``uncovered_water``'s)."""
+RASTER_CHANNELS = ("water", "covered")  # ``local_raster``'s channels, in column order
+
+
+def raster_cells(cells: int) -> list[tuple[int, int]]:
+    """The local raster's cells (a, b), east then north of the buoy in cells from −h to h (``cells`` = 2h + 1), in
+    column order: row by row from the south, each row from the west."""
+    h = (cells - 1) // 2
+    return [(a, b) for b in range(-h, h + 1) for a in range(-h, h + 1)]
+
+
+def raster_offsets(cells: int, half_side: float) -> np.ndarray:
+    """Each raster cell's centre relative to the buoy, m: the square of half-side ``half_side`` cut into
+    ``cells`` × ``cells``. → [cells², 2] in ``raster_cells``' order."""
+    return np.array(raster_cells(cells), dtype=np.float64) * (2 * half_side / cells)
+
+
+def columns(k: int, rays: int, uncovered: bool = False, raster: int = 0) -> list[str]:
+    """Names of ``local_observation``'s columns, in order (``uncovered``: with ``uncovered_water``'s; ``raster``:
+    with ``local_raster``'s, ``raster_CHANNEL_A_B`` for the cell A east and B north of the buoy)."""
     compass = [round(360 * r / rays) for r in range(rays)]
     return (["vx", "vy"] + [f"neighbour{j}_{c}" for j in range(k) for c in ("dx", "dy")]
             + [f"neighbour{j}_heard" for j in range(k)] + [f"shore_{d}deg" for d in compass]
-            + ([f"uncovered_{d}deg" for d in compass] if uncovered else []))
+            + ([f"uncovered_{d}deg" for d in compass] if uncovered else [])
+            + [f"raster_{ch}_{a}_{b}" for ch in RASTER_CHANNELS for a, b in raster_cells(raster)])
 
 
 def describe(config) -> list[dict]:
     """Each sensor of ``local_observation`` as the exported policy's metadata lists it: its function, its columns,
     its settings (``config``: a ``core.sections.SensorsConfig``)."""
     k, rays = config.neighbours, config.rays
-    names = columns(k, rays, bool(config.uncovered))
+    names = columns(k, rays, bool(config.uncovered), config.raster)
     described = [
         {"sensor": "own_velocity", "columns": names[:2], "shape": "[E, N, 2]", "units": "m/s",
          "frame": "over the ground (GPS)" if config.velocity == "ground" else "through the water (log)"},
@@ -260,25 +278,114 @@ def describe(config) -> list[dict]:
          "directions": "compass, east first, counter-clockwise"},
     ]
     if config.uncovered:
-        described.append({"sensor": "uncovered_water", "columns": names[2 + 3 * k + rays:], "shape": f"[E, N, {rays}]",
+        described.append({"sensor": "uncovered_water", "columns": names[2 + 3 * k + rays:2 + 3 * k + 2 * rays],
+                          "shape": f"[E, N, {rays}]",
                           "radii_m": list(config.uncovered), "comm_range_m": config.comm_range,
                           "units": "share of the points along each ray that are water no other buoy heard covers",
                           "directions": "those of shore_distances"})
+    if config.raster:
+        cells = config.raster
+        described.append({"sensor": "local_raster", "columns": [c for c in names if c.startswith("raster_")],
+                          "shape": f"[E, N, {len(RASTER_CHANNELS)}, {cells}, {cells}]", "cells": cells,
+                          "half_side_m": config.ray_range, "cell_m": 2 * config.ray_range / cells,
+                          "comm_range_m": config.comm_range,
+                          "units": "1 or 0 at each cell's centre: water (from the lake's outline); within the coverage "
+                                   "range of another buoy heard",
+                          "cells_order": "raster_CHANNEL_A_B: A cells east and B north of the buoy"})
     return described
+
+
+class WaterMask:
+    """The water of a lake on a fine square grid (``cell`` m), for reading many points at once: a point in a cell
+    no shore edge passes through is water as the cell's centre is (one lookup); a point in a cell the shore may
+    cross (within the bounding box of one of its edges) is read from the outline (shapely), so every point reads
+    exactly as ``shapely.contains_xy``. Off the grid is dry. Built once per lake with one vectorised call."""
+
+    def __init__(self, water: Polygon, cell: float):
+        minx, miny, maxx, maxy = water.bounds
+        self.water, self.cell, self.x0, self.y0 = water, float(cell), float(minx), float(miny)
+        self.nx, self.ny = int(np.ceil((maxx - minx) / cell)) + 1, int(np.ceil((maxy - miny) / cell)) + 1
+        xs = self.x0 + (np.arange(self.nx) + 0.5) * self.cell
+        ys = self.y0 + (np.arange(self.ny) + 0.5) * self.cell
+        shapely.prepare(water)
+        self.wet = shapely.contains_xy(water, xs[None, :], ys[:, None])  # [ny, nx]
+        self.shore = np.zeros((self.ny, self.nx), dtype=bool)  # the cells an edge's bounding box touches
+        edges = shore_segments(water)
+        lo = np.floor((np.minimum(edges[:, :2], edges[:, 2:]) - (self.x0, self.y0)) / self.cell).astype(np.int64)
+        hi = np.floor((np.maximum(edges[:, :2], edges[:, 2:]) - (self.x0, self.y0)) / self.cell).astype(np.int64)
+        lo, hi = np.clip(lo - 1, 0, None), np.clip(hi + 1, None, (self.nx - 1, self.ny - 1))
+        for (i0, j0), (i1, j1) in zip(lo, hi):  # once per lake, one box per edge
+            self.shore[j0:j1 + 1, i0:i1 + 1] = True
+
+    @classmethod
+    def for_raster(cls, water: Polygon, cells: int, half_side: float, most: int = 4_000_000) -> WaterMask:
+        """A grid an eighth of the raster's cell fine, coarser only where the lake would need more than ``most``
+        grid cells."""
+        minx, miny, maxx, maxy = water.bounds
+        return cls(water, max(2 * half_side / cells / 8, np.sqrt((maxx - minx) * (maxy - miny) / most)))
+
+    def at(self, xy: np.ndarray) -> np.ndarray:
+        """Whether each point [..., 2] lies in the water → bool [...]."""
+        i = np.floor((xy[..., 0] - self.x0) / self.cell).astype(np.int64)
+        j = np.floor((xy[..., 1] - self.y0) / self.cell).astype(np.int64)
+        inside = (i >= 0) & (i < self.nx) & (j >= 0) & (j < self.ny)
+        i, j = np.clip(i, 0, self.nx - 1), np.clip(j, 0, self.ny - 1)
+        wet = inside & self.wet[j, i]
+        near = inside & self.shore[j, i]
+        wet[near] = shapely.contains_xy(self.water, xy[..., 0][near], xy[..., 1][near])
+        return wet
+
+
+@numba.njit(cache=True)
+def _covered(pos, alive, offsets, radius, comm_range, out):  # pragma: no cover - compiled
+    e, n, cells = pos.shape[0], pos.shape[1], offsets.shape[0]
+    for b in range(e):
+        for i in range(n):
+            for c in range(cells):
+                out[b, i, c] = 0.0
+            for j in range(n):
+                if j == i or not alive[b, j]:
+                    continue
+                rx, ry = pos[b, j, 0] - pos[b, i, 0], pos[b, j, 1] - pos[b, i, 1]
+                if np.sqrt(rx * rx + ry * ry) > comm_range:
+                    continue  # not heard
+                for c in range(cells):
+                    gx, gy = offsets[c, 0] - rx, offsets[c, 1] - ry
+                    if gx * gx + gy * gy <= radius * radius:
+                        out[b, i, c] = 1.0
+
+
+def local_raster(pos: np.ndarray, water: WaterMask, offsets: np.ndarray, radius: float, comm_range: float,
+                 alive: np.ndarray | None = None) -> np.ndarray:
+    """A small map around each buoy, as LPAC's robots see theirs (Agarwal et al. 2025): at each cell's centre
+    (``raster_offsets``, in the world's compass, not turned with the buoy), whether it is water (``water``, the
+    lake's outline) and whether another buoy heard within ``comm_range`` covers it (within ``radius``, the coverage
+    range R). pos [E, N, 2], offsets [C, 2] → [E, N, 2C] in ``RASTER_CHANNELS``' order, 1 or 0."""
+    e, n = pos.shape[:2]
+    wet = water.at(pos[:, :, None, :] + offsets[None, None]).astype(np.float64)  # [E, N, C]
+    live = np.ones((e, n), dtype=np.bool_) if alive is None else np.ascontiguousarray(alive, dtype=np.bool_)
+    covered = np.empty((e, n, len(offsets)))
+    _covered(np.ascontiguousarray(pos, dtype=np.float64), live, np.ascontiguousarray(offsets, dtype=np.float64),
+             float(radius), float(comm_range), covered)
+    return np.concatenate([wet, covered], axis=-1)
 
 
 def local_observation(pos: np.ndarray, vel: np.ndarray, segments: np.ndarray | ShoreGrid, directions: np.ndarray,
                       k: int,
                       comm_range: float, ray_range: float, alive: np.ndarray | None = None,
-                      uncovered: tuple[float, ...] = (), radius: float = 0.0) -> np.ndarray:
+                      uncovered: tuple[float, ...] = (), radius: float = 0.0,
+                      raster: tuple[WaterMask, np.ndarray] | None = None) -> np.ndarray:
     """Every sensor of every buoy, concatenated in the order of ``columns``: [E, N, 2 + 3k + rays] float32, and
-    ``rays`` more with ``uncovered`` (the radii of ``uncovered_water``'s points; ``radius``: the coverage range)."""
+    ``rays`` more with ``uncovered`` (the radii of ``uncovered_water``'s points; ``radius``: the coverage range),
+    and 2C more with ``raster`` (``local_raster``'s water mask and cell offsets [C, 2])."""
     rel, mask = neighbours(pos, k, comm_range, alive)
     e, n = pos.shape[:2]
     shore = shore_distances(pos, segments, directions, ray_range)
     parts = [own_velocity(vel), rel.reshape(e, n, 2 * k), mask, shore]
     if uncovered:
         parts.append(uncovered_water(pos, shore, directions, uncovered, radius, comm_range, alive))
+    if raster is not None:
+        parts.append(local_raster(pos, *raster, radius, comm_range, alive))
     return np.concatenate(parts, axis=-1).astype(np.float32)
 
 

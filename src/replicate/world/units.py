@@ -103,6 +103,8 @@ class Units:
                          f"{world.damping:g} of the gap each control period"}
         if sensors is not None:
             out.update(comm_range_m=self.length_m(sensors.comm_range), shore_range_m=self.length_m(sensors.ray_range))
+            if sensors.raster:
+                out.update(raster_cell_m=self.length_m(2 * sensors.ray_range / sensors.raster))
         return {k: (round(float(v), 9) if isinstance(v, float | np.floating) else v) for k, v in out.items()}
 
 
@@ -129,12 +131,12 @@ SPEED, LENGTH, PURE = "m/s", "m", "1"
 
 def column_unit(column: str) -> str:
     """The SI unit of a local observation's column (``sensors.columns``): a speed, a length, or a pure number (a
-    heard-mask, a share of uncovered water)."""
+    heard-mask, a share of uncovered water, a cell of the local raster)."""
     if column in ("vx", "vy"):
         return SPEED
     if column.endswith(("_dx", "_dy")) or column.startswith("shore_"):
         return LENGTH
-    if column.endswith("_heard") or column.startswith("uncovered_"):
+    if column.endswith("_heard") or column.startswith(("uncovered_", "raster_")):
         return PURE
     raise ValueError(f"unknown observation column {column!r}")
 
@@ -167,6 +169,10 @@ def contract(world: WorldConfig, coverage: CoverageConfig, sensors: SensorsConfi
             text = "1 if this neighbour slot holds a buoy heard within comm_range, else 0"
         elif c.startswith("uncovered_"):
             text = "share of the points along this ray that are water no buoy heard covers"
+        elif c.startswith("raster_water_"):
+            text = "1 if the centre of this cell of the map around the buoy (cells east, north) is water, else 0"
+        elif c.startswith("raster_covered_"):
+            text = "1 if another buoy heard within comm_range covers the centre of this cell (cells east, north)"
         elif c.startswith("shore_"):
             text = "distance to the shore along this compass direction (east = 0 deg, counter-clockwise), " \
                    "capped at shore_range (no shore within reach reads shore_range)"
