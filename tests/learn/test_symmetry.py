@@ -13,7 +13,7 @@ from replicate.core.params import load_params
 from replicate.core.schema import ConfigError
 from replicate.learn.shared_maddpg import SharedActor
 from replicate.learn.symmetry import _signed_permutation, d4
-from replicate.world import sensors
+from replicate.world import local_map, sensors
 
 from ..conftest import ROOT
 from ..world.test_sensors import points_inside
@@ -50,7 +50,7 @@ def test_a_turned_lake_turns_the_observation(regions, lake):
     wet = np.array([c.startswith("raster_water_") for c in RASTER_COLUMNS])
 
     def observe(poly, p, v):
-        raster = (sensors.WaterMask.for_raster(poly, 5, 2.0), sensors.raster_offsets(5, 2.0))
+        raster = (local_map.WaterMask.for_raster(poly, 5, 2.0), local_map.raster_offsets(5, 2.0))
         return sensors.local_observation(p, v, sensors.shore_segments(poly), directions, 4, 1.5, 2.0, alive,
                                          (0.25, 0.5, 0.75), 0.5, raster)
 

@@ -21,7 +21,7 @@ from pettingzoo import ParallelEnv
 
 from replicate.core.params import Params, load_params, packaged
 from replicate.core.sections import SensorsConfig
-from replicate.world import sensors
+from replicate.world import local_map
 from replicate.world.currents import Current
 from replicate.world.env import STARTS, CoverageEnv
 from replicate.world.regions import Region
@@ -207,7 +207,7 @@ def local_bounds(core: CoverageEnv) -> tuple[np.ndarray, np.ndarray]:
     if sc.velocity == "ground" and core.current is not None:
         v_max += core.current.max_speed()
     k = sc.neighbours
-    shares = (sc.rays if sc.uncovered else 0) + len(sensors.RASTER_CHANNELS) * sc.raster**2
+    shares = (sc.rays if sc.uncovered else 0) + len(local_map.RASTER_CHANNELS) * sc.raster**2
     lo = np.concatenate([[-v_max] * 2, [-sc.comm_range] * 2 * k, [0.0] * k, [0.0] * sc.rays, [0.0] * shares])
     hi = np.concatenate([[v_max] * 2, [sc.comm_range] * 2 * k, [1.0] * k, [sc.ray_range] * sc.rays, [1.0] * shares])
     return lo - 1e-6, hi + 1e-6

@@ -7,6 +7,7 @@ random numbers. Episodes have a fixed length T, so all E environments start and 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,7 +16,7 @@ from shapely.geometry import Polygon, box
 from shapely.ops import nearest_points
 
 from replicate.core.sections import CoverageConfig, CRRewardConfig, SensorsConfig, SWRewardConfig, WorldConfig
-from replicate.world import rewards, sensors
+from replicate.world import local_map, rewards, sensors
 from replicate.world.geometry import CoverageGeometry, coverage_fraction_exact, water_grid
 from replicate.world.regions import Region, RegionError, signed_distance
 from replicate.world.shore import shoreline, wall_step
@@ -159,15 +160,11 @@ class CoverageEnv:
         if observation == "local":  # the shore's edges and the rays' directions, once
             self.shore_edges = sensors.ShoreGrid(sensors.shore_segments(region.polygon))
             self.ray_directions = sensors.ray_directions(self.sensor_config.rays)
-        self.raster = None  # the water mask and the cells' offsets of the local raster, with ``SensorsConfig.raster``
-        if observation == "local" and self.sensor_config.raster:
-            sc = self.sensor_config
-            self.raster = (sensors.WaterMask.for_raster(region.polygon, sc.raster, sc.ray_range),
-                           sensors.raster_offsets(sc.raster, sc.ray_range))
+        # the water mask and the cells' offsets of the local raster, with ``SensorsConfig.raster``
+        self.raster = local_map.for_sensors(region.polygon, self.sensor_config) if observation == "local" else None
         # first: it refuses a region too narrow, naming it
         self.patch = start_patch(region.polygon, world.start_patch, name=region.name, scale=region.scale)
         self._geometry = None  # the fast path's tables: built below for a reward, on first use without one
-        self._water_points = None  # the water's points for Lloyd's cost (``Pay.lloyd``, ``lloyd_move``), on first use
         self.start = "corner"  # where ``reset`` releases the buoys (``STARTS``)
         self.alive: np.ndarray | None = None  # [E, N] bool once a buoy is lost (``lose``); None: all alive
         self.wall = wall
@@ -242,7 +239,7 @@ class CoverageEnv:
         self.ground_vel = np.zeros_like(self.pos)
         self.alive = None
         self.t = 0
-        self.potential, self.pull = self.lloyd_potential(), self.lloyd_pull()
+        self.potential, self.pull = self.lloyd_terms()
         return self.observe()
 
     def lose(self, count: int, rng: np.random.Generator) -> None:
@@ -254,8 +251,7 @@ class CoverageEnv:
         for e in range(self.n_envs):  # E draws of a few indices: the loop is over environments, not agents
             alive[e, rng.choice(np.flatnonzero(alive[e]), size=count, replace=False)] = False
         self.alive = alive  # ``integrate`` holds the lost buoys still from here on
-        self.potential = self.lloyd_potential()  # a loss is not the survivors' doing: their cells grow unpaid
-        self.pull = self.lloyd_pull()
+        self.potential, self.pull = self.lloyd_terms()  # a loss is not the survivors' doing: their cells grow unpaid
 
     def live(self, x: np.ndarray) -> np.ndarray:
         """The rows of the buoys still in service of a per-buoy array [E, N, ...] → [E, N_live, ...] (every
@@ -345,34 +341,27 @@ class CoverageEnv:
         if self.pay.shore_penalty:
             live = np.ones((self.n_envs, self.n_agents), bool) if self.alive is None else self.alive
             pay = pay - self.pay.shore_penalty * (sensors.on_shore(obs, self.shore_rays) & live)
-        if self.pay.lloyd:  # the sum over an episode telescopes to Φ(s_T) − Φ(s_0)
-            before, self.potential = self.potential, self.lloyd_potential()
-            pay = pay + self.pay.lloyd * (self.potential - before)
-        if self.pay.lloyd_move:  # the pull at s times the buoy's displacement over the ground, s to s'
-            before, self.pull = self.pull, self.lloyd_pull()
-            pay = pay + self.pay.lloyd_move * (before * self.ground_vel * self.world.dt).sum(-1)
+        if self.pay.lloyd or self.pay.lloyd_move:
+            (before, pull), (self.potential, self.pull) = (self.potential, self.pull), self.lloyd_terms()
+            if self.pay.lloyd:  # the sum over an episode telescopes to Φ(s_T) − Φ(s_0)
+                pay = pay + self.pay.lloyd * (self.potential - before)
+            if self.pay.lloyd_move:  # the pull at s times the buoy's displacement over the ground, s to s'
+                pay = pay + self.pay.lloyd_move * (pull * self.ground_vel * self.world.dt).sum(-1)
         return pay
 
-    def lloyd_potential(self) -> np.ndarray | None:
-        """Φ [E, N] at the current positions with ``Pay.lloyd`` (``rewards.lloyd_potential`` over the water's
-        points R/2 apart), else None."""
-        if not self.pay.lloyd:
-            return None
-        return rewards.lloyd_potential(self.pos, self.alive, self.water_points, self.coverage.radius)
+    def lloyd_terms(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Lloyd's cost at the current positions as the pay asks for it: (Φ [E, N] with ``Pay.lloyd``,
+        ∂Φ_i/∂p_i [E, N, 2] with ``Pay.lloyd_move``; ``rewards.lloyd_potential``, ``lloyd_pull``), None where off."""
+        if not (self.pay.lloyd or self.pay.lloyd_move):
+            return None, None
+        at = (self.pos, self.alive, self.water_points, self.coverage.radius)
+        return (rewards.lloyd_potential(*at) if self.pay.lloyd else None,
+                rewards.lloyd_pull(*at) if self.pay.lloyd_move else None)
 
-    def lloyd_pull(self) -> np.ndarray | None:
-        """∂Φ_i/∂p_i [E, N, 2] at the current positions with ``Pay.lloyd_move`` (``rewards.lloyd_pull``), else
-        None."""
-        if not self.pay.lloyd_move:
-            return None
-        return rewards.lloyd_pull(self.pos, self.alive, self.water_points, self.coverage.radius)
-
-    @property
+    @functools.cached_property
     def water_points(self) -> np.ndarray:
         """The water's points R/2 apart that Lloyd's cost is measured over, built on first use."""
-        if self._water_points is None:
-            self._water_points = water_grid(self.region.polygon, self.coverage.radius / 2)
-        return self._water_points
+        return water_grid(self.region.polygon, self.coverage.radius / 2)
 
     def reward(self) -> tuple[np.ndarray, np.ndarray]:
         """The configured reward at the current positions: ([E, N], union area [E] or NaN). After a loss the

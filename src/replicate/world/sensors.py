@@ -14,6 +14,8 @@ import shapely
 from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
+from replicate.world.local_map import RASTER_CHANNELS, WaterMask, local_raster, raster_cells
+
 
 def own_velocity(vel: np.ndarray) -> np.ndarray:
     """The buoy's velocity in the world frame, [E, N, 2] → [E, N, 2]: through the water (what a log reads) or over
@@ -237,22 +239,6 @@ def uncovered_water(pos: np.ndarray, shore: np.ndarray, directions: np.ndarray, 
     return out
 
 
-RASTER_CHANNELS = ("water", "covered")  # ``local_raster``'s channels, in column order
-
-
-def raster_cells(cells: int) -> list[tuple[int, int]]:
-    """The local raster's cells (a, b), east then north of the buoy in cells from −h to h (``cells`` = 2h + 1), in
-    column order: row by row from the south, each row from the west."""
-    h = (cells - 1) // 2
-    return [(a, b) for b in range(-h, h + 1) for a in range(-h, h + 1)]
-
-
-def raster_offsets(cells: int, half_side: float) -> np.ndarray:
-    """Each raster cell's centre relative to the buoy, m: the square of half-side ``half_side`` cut into
-    ``cells`` × ``cells``. → [cells², 2] in ``raster_cells``' order."""
-    return np.array(raster_cells(cells), dtype=np.float64) * (2 * half_side / cells)
-
-
 def columns(k: int, rays: int, uncovered: bool = False, raster: int = 0) -> list[str]:
     """Names of ``local_observation``'s columns, in order (``uncovered``: with ``uncovered_water``'s; ``raster``:
     with ``local_raster``'s, ``raster_CHANNEL_A_B`` for the cell A east and B north of the buoy)."""
@@ -293,81 +279,6 @@ def describe(config) -> list[dict]:
                                    "range of another buoy heard",
                           "cells_order": "raster_CHANNEL_A_B: A cells east and B north of the buoy"})
     return described
-
-
-class WaterMask:
-    """The water of a lake on a fine square grid (``cell`` m), for reading many points at once: a point in a cell
-    no shore edge passes through is water as the cell's centre is (one lookup); a point in a cell the shore may
-    cross (within the bounding box of one of its edges) is read from the outline (shapely), so every point reads
-    exactly as ``shapely.contains_xy``. Off the grid is dry. Built once per lake with one vectorised call."""
-
-    def __init__(self, water: Polygon, cell: float):
-        minx, miny, maxx, maxy = water.bounds
-        self.water, self.cell, self.x0, self.y0 = water, float(cell), float(minx), float(miny)
-        self.nx, self.ny = int(np.ceil((maxx - minx) / cell)) + 1, int(np.ceil((maxy - miny) / cell)) + 1
-        xs = self.x0 + (np.arange(self.nx) + 0.5) * self.cell
-        ys = self.y0 + (np.arange(self.ny) + 0.5) * self.cell
-        shapely.prepare(water)
-        self.wet = shapely.contains_xy(water, xs[None, :], ys[:, None])  # [ny, nx]
-        self.shore = np.zeros((self.ny, self.nx), dtype=bool)  # the cells an edge's bounding box touches
-        edges = shore_segments(water)
-        lo = np.floor((np.minimum(edges[:, :2], edges[:, 2:]) - (self.x0, self.y0)) / self.cell).astype(np.int64)
-        hi = np.floor((np.maximum(edges[:, :2], edges[:, 2:]) - (self.x0, self.y0)) / self.cell).astype(np.int64)
-        lo, hi = np.clip(lo - 1, 0, None), np.clip(hi + 1, None, (self.nx - 1, self.ny - 1))
-        for (i0, j0), (i1, j1) in zip(lo, hi):  # once per lake, one box per edge
-            self.shore[j0:j1 + 1, i0:i1 + 1] = True
-
-    @classmethod
-    def for_raster(cls, water: Polygon, cells: int, half_side: float, most: int = 4_000_000) -> WaterMask:
-        """A grid an eighth of the raster's cell fine, coarser only where the lake would need more than ``most``
-        grid cells."""
-        minx, miny, maxx, maxy = water.bounds
-        return cls(water, max(2 * half_side / cells / 8, np.sqrt((maxx - minx) * (maxy - miny) / most)))
-
-    def at(self, xy: np.ndarray) -> np.ndarray:
-        """Whether each point [..., 2] lies in the water → bool [...]."""
-        i = np.floor((xy[..., 0] - self.x0) / self.cell).astype(np.int64)
-        j = np.floor((xy[..., 1] - self.y0) / self.cell).astype(np.int64)
-        inside = (i >= 0) & (i < self.nx) & (j >= 0) & (j < self.ny)
-        i, j = np.clip(i, 0, self.nx - 1), np.clip(j, 0, self.ny - 1)
-        wet = inside & self.wet[j, i]
-        near = inside & self.shore[j, i]
-        wet[near] = shapely.contains_xy(self.water, xy[..., 0][near], xy[..., 1][near])
-        return wet
-
-
-@numba.njit(cache=True)
-def _covered(pos, alive, offsets, radius, comm_range, out):  # pragma: no cover - compiled
-    e, n, cells = pos.shape[0], pos.shape[1], offsets.shape[0]
-    for b in range(e):
-        for i in range(n):
-            for c in range(cells):
-                out[b, i, c] = 0.0
-            for j in range(n):
-                if j == i or not alive[b, j]:
-                    continue
-                rx, ry = pos[b, j, 0] - pos[b, i, 0], pos[b, j, 1] - pos[b, i, 1]
-                if np.sqrt(rx * rx + ry * ry) > comm_range:
-                    continue  # not heard
-                for c in range(cells):
-                    gx, gy = offsets[c, 0] - rx, offsets[c, 1] - ry
-                    if gx * gx + gy * gy <= radius * radius:
-                        out[b, i, c] = 1.0
-
-
-def local_raster(pos: np.ndarray, water: WaterMask, offsets: np.ndarray, radius: float, comm_range: float,
-                 alive: np.ndarray | None = None) -> np.ndarray:
-    """A small map around each buoy, as LPAC's robots see theirs (Agarwal et al. 2025): at each cell's centre
-    (``raster_offsets``, in the world's compass, not turned with the buoy), whether it is water (``water``, the
-    lake's outline) and whether another buoy heard within ``comm_range`` covers it (within ``radius``, the coverage
-    range R). pos [E, N, 2], offsets [C, 2] → [E, N, 2C] in ``RASTER_CHANNELS``' order, 1 or 0."""
-    e, n = pos.shape[:2]
-    wet = water.at(pos[:, :, None, :] + offsets[None, None]).astype(np.float64)  # [E, N, C]
-    live = np.ones((e, n), dtype=np.bool_) if alive is None else np.ascontiguousarray(alive, dtype=np.bool_)
-    covered = np.empty((e, n, len(offsets)))
-    _covered(np.ascontiguousarray(pos, dtype=np.float64), live, np.ascontiguousarray(offsets, dtype=np.float64),
-             float(radius), float(comm_range), covered)
-    return np.concatenate([wet, covered], axis=-1)
 
 
 def local_observation(pos: np.ndarray, vel: np.ndarray, segments: np.ndarray | ShoreGrid, directions: np.ndarray,
