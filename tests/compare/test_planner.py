@@ -95,6 +95,30 @@ def test_the_general_training_learns_from_the_planner(params, tmp_path):
     assert not expert[~live].any()
 
 
+def test_imitation_before_stops_asking_the_teacher(params, tmp_path):
+    """``imitation: before`` with ``imitation_until`` 0.5: the first half of the batches carry the planner's labels,
+    the second half zeros (the teacher is asked no more), and the actor-critic alone trains the actor at the end."""
+    import dataclasses
+
+    from replicate.compare.planner import planner_teacher
+    from replicate.learn.general_train import GeneralTrainer
+
+    from ..learn.test_general_train import tiny
+
+    gc = tiny(params)
+    gc = dataclasses.replace(gc, learner=dataclasses.replace(gc.learner, imitation="before", imitation_until=0.5))
+    trainer = GeneralTrainer(params, 4, tmp_path / "before", progress=False, config=gc,
+                             teacher=planner_teacher(dataclasses.replace(params, general=gc), None))
+    trainer.run()
+    memory = trainer.loop.memories[0]
+    assert memory.size < memory.capacity  # no row overwritten: the rows are in the order they were played
+    expert, live = memory.data["expert"][:memory.size], memory.data["live"][:memory.size]
+    labelled = np.abs(expert).sum(-1).any(-1)  # [rows]: a batch with a label for a buoy
+    half = memory.size // 2
+    assert labelled[:half][live[:half].any(-1)].mean() > 0.9 and not labelled[half:].any()
+    assert trainer.agent.imitation == "none" and trainer.teacher is None
+
+
 def test_a_long_action_keeps_its_direction():
     """Scaled into the box along its direction, not clipped per component: (300, −100) becomes (1, −1/3)."""
     from replicate.compare.planner import in_the_box

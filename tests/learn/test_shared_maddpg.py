@@ -255,3 +255,28 @@ def test_imitation_moves_the_actor_toward_the_teacher():
     torch.testing.assert_close(unlabelled.actor(b.obs)[0].detach(), actors["none"])
     assert not torch.allclose(actors["beside"], actors["none"]) and not torch.allclose(actors["beside"],
                                                                                          actors["alone"])
+
+
+def test_imitation_before_hands_over_to_the_actor_critic():
+    """``imitation: before``: the update imitates alone (as ``alone``, update for update) until ``hand_over``; after
+    it the teacher's labels no longer move anything (two copies updated on opposite labels stay equal), and the
+    actor-critic term moves the actor (unlike ``alone``'s, which stays where the labels hold it)."""
+    import copy
+    import dataclasses
+
+    b = fleet(6, batch=32, seed=3)
+    b.expert = torch.tensor([0.5, -0.5]).expand(32, 6, 2).clone()
+    cfg = SharedLearnerConfig(hidden=32, embed=16, actor_lr=3e-3)
+    before, alone = (SharedMADDPG(OD, AD, dataclasses.replace(cfg, imitation=m), seed=0) for m in ("before", "alone"))
+    for _ in range(20):
+        assert before.update(b) == alone.update(b)
+    torch.testing.assert_close(before.actor(b.obs)[0], alone.actor(b.obs)[0])
+    before.hand_over()
+    flipped = copy.deepcopy(b)
+    flipped.expert = -b.expert
+    other = copy.deepcopy(before)
+    for _ in range(20):
+        assert before.update(b) == other.update(flipped)
+        alone.update(b)
+    torch.testing.assert_close(before.actor(b.obs)[0], other.actor(b.obs)[0])
+    assert not torch.allclose(before.actor(b.obs)[0], alone.actor(b.obs)[0])

@@ -213,13 +213,16 @@ class SharedLearnerConfig:
     pool_neighbours: Annotated[Int, In(0, MAX_AGENTS)] = 0  # the critic pools each buoy's K nearest (0: all)
     symmetry: Symmetry = "none"  # "d4": the actor averaged over the compass's quarter turns and mirrors; "d4_frame":
     # run once in each observation's canonical frame of them
-    imitation: Literal["none", "beside", "alone"] = "none"  # the clairvoyant planner as a teacher: its action for
-    # every buoy at every state the learner visits (DAgger's labels), imitated beside the actor-critic loss or alone
+    imitation: Literal["none", "beside", "alone", "before"] = "none"  # the clairvoyant planner as a teacher: its
+    # action for every buoy at every state the learner visits (DAgger's labels), imitated beside the actor-critic
+    # loss, alone, or alone before the actor-critic takes over (``imitation_until``)
     imitation_weight: NonNegative = 1.0  # the weight of the imitation loss, mean squared action error per buoy
+    imitation_until: Annotated[Num, In(0, 1, open_lo=True)] = 0.25  # "before": the share of the training's batches
+    # in which the actor imitates alone; the actor-critic alone after it, and the teacher labels no more
     hops: Annotated[Int, In(0, 3)] = 0  # rounds of messages between the buoys that hear each other
     # (``learn.messages``); 0: the actor reads its own sensors only
-    OPTIONAL: ClassVar[tuple[str, ...]] = ("symmetry", "imitation", "imitation_weight", "hops")  # left out of a
-    # run's identity at their default (as sensors')
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("symmetry", "imitation", "imitation_weight", "imitation_until",
+                                           "hops")  # left out of a run's identity at their default (as sensors')
 
     @model_validator(mode="after")
     def check(self):

@@ -10,7 +10,9 @@ Transitions of fleets of different sizes share one replay memory, padded to the 
 With ``general.learner.imitation``, a teacher (the clairvoyant planner, ``compare.planner``, which the caller
 builds: this wing does not read the comparisons) gives its action for every buoy in every state the learner
 visits; the memory keeps it beside the transition, and the actor's loss imitates it beside the actor-critic
-term or alone (DAgger's relabelling of the learner's own states, Ross et al. 2011).
+term or alone (DAgger's relabelling of the learner's own states, Ross et al. 2011), or alone for the first
+``imitation_until`` of the batches, after which the actor-critic alone trains the actor and the teacher is asked
+no more.
 
 The run keeps the actor that covered best on its validation starts (every named region from the corner, each
 world scattered, fixed seeds drawn from the run's seed) and writes into its folder: ``actor.pt`` (weights and
@@ -83,6 +85,7 @@ class GeneralTrainer:
         if actor is not None:
             self.agent.actor.load_state_dict(actor)
             self.agent.actor_target.load_state_dict(actor)
+        self.labelled = imitating  # the memory keeps a teacher's label beside each transition
         memory = Replay(self.gc.buffer_size, max(w.n_agents for w in self.worlds), obs_dim, fleets=True,
                         expert=imitating)
         self.loop = TrainingLoop(self.agent, self.gc, [memory], [np.random.default_rng(streams[3])], stacked=False)
@@ -106,12 +109,30 @@ class GeneralTrainer:
             self.validate(0)  # the starting weights are the ones to beat
         for batch in progress_bar(self.progress, iterable=range(batches), desc="training", unit="batch"):
             sigma = self.loop.schedule(batch / batches)
+            if self.teacher is not None and gc.learner.imitation == "before" and \
+                    batch >= gc.learner.imitation_until * batches:
+                self.hand_over()
             world = self.worlds[batch % len(self.worlds)]
             row = self.play(world, sigma)
             due = (batch + 1) % len(self.worlds) == 0 or batch == batches - 1
             score = self.validate((batch + 1) * gc.n_envs) if due else math.nan
             self.rows.append([batch, (batch + 1) * gc.n_envs, world.region.name, world.n_agents, *row, sigma, score])
         return self.finish(time.perf_counter() - t0, time.process_time() - c0)
+
+    def hand_over(self) -> None:
+        """The end of the imitation before the actor-critic: the actor's loss is the actor-critic's alone, and the
+        memory's labels from now on are zeros that no update reads."""
+        self.agent.hand_over()
+        self.teacher = None
+
+    def labels(self, env: CoverageEnv) -> dict[str, np.ndarray]:
+        """The teacher's actions [E, N, 2] in ``env``'s state, as the memory keeps them: none without a teacher,
+        zeros once it has handed over."""
+        if not self.labelled:
+            return {}
+        if self.teacher is None:
+            return {"expert": np.zeros(env.pos.shape, np.float32)}
+        return {"expert": self.teacher(env).astype(np.float32)}
 
     def play(self, world: World, sigma: float) -> list:
         """One batch of E episodes in ``world``: its events drawn, every step stored, every due update made.
@@ -132,7 +153,7 @@ class GeneralTrainer:
                 obs = env.observe()
             live = np.ones((env.n_envs, world.n_agents), bool) if env.alive is None else env.alive.copy()
             pos = env.pos.copy()
-            taught = {} if self.teacher is None else {"expert": self.teacher(env).astype(np.float32)}
+            taught = self.labels(env)
             act = self.agent.act(obs, sigma, self.noise, pos, live).numpy()
             step = env.step(act)
             writer.push(t == gc.episode_length - 1, live=live, obs=obs, act=act, rew=step.pay, pos=pos,

@@ -175,6 +175,11 @@ class SharedMADDPG:
         self.actor_target, self.critic_target = copy.deepcopy(self.actor), copy.deepcopy(self.critic)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
+        self.imitation = "alone" if cfg.imitation == "before" else cfg.imitation  # what the actor's loss is now
+
+    def hand_over(self) -> None:
+        """``imitation: before``: the imitation ends, the actor-critic alone trains the actor from now on."""
+        self.imitation = "none"
 
     def update(self, b: Batch) -> dict[str, float]:
         """One step of the critic, the actor and the targets on the buoys in service of ``b`` (its rows: padding
@@ -205,9 +210,9 @@ class SharedMADDPG:
             pool = critic.pooled(b.obs, b.act, now)
         mu, pre = (x[rows] for x in self.actor.fleet(b.obs, b.pos, b.live))
         actor_loss = cfg.actor_reg * (pre**2).mean()
-        if cfg.imitation != "alone":
+        if self.imitation != "alone":
             actor_loss = actor_loss - critic.score(obs, mu, pool).mean()
-        if cfg.imitation != "none":  # + λ·mean_i ‖μ(o_i) − a*_i‖²: the teacher's action in the learner's state
+        if self.imitation != "none":  # + λ·mean_i ‖μ(o_i) − a*_i‖²: the teacher's action in the learner's state
             actor_loss = actor_loss + cfg.imitation_weight * ((mu - b.expert[rows]) ** 2).sum(-1).mean()
         self.actor_opt.zero_grad()
         actor_loss.backward(inputs=list(self.actor.parameters()))  # through μ only, not into Q's weights
