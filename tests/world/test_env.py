@@ -209,16 +209,23 @@ def test_an_island_filling_the_lake_is_measured_by_the_water_around_it(params):
         CoverageEnv(Region("moat", lake), params.world, params.coverage)
 
 
-def test_lloyd_shaping_pays_the_progress_of_each_cell(params, regions):
-    """``Pay.lloyd`` adds β(Φ(s') − Φ(s)) to each buoy's pay: over an episode the added pay sums to
-    β(Φ(s_T) − Φ(s_0)) for every buoy, whatever the actions, and nothing else changes."""
+def paid_with_and_without(params, regions, shaped_pay: Pay) -> tuple[CoverageEnv, CoverageEnv]:
+    """Two environments on the rectangle (4 buoys, 2 episodes, CR's reward with the difference credit), one paid
+    ``Pay(0.01)``, the other ``shaped_pay``, reset to the same corner start."""
     world = dataclasses.replace(params.world, n_agents=4, episode_length=10)
     options = {"n_envs": 2, "reward": "cr", "cr": params.cr_reward, "observation": "local", "wall": True,
                "union_credit": "difference"}
-    plain = CoverageEnv(regions["rectangle"], world, params.coverage, pay=Pay(0.01), **options)
-    shaped = CoverageEnv(regions["rectangle"], world, params.coverage, pay=Pay(0.01, lloyd=2.0), **options)
-    for env in (plain, shaped):
+    envs = tuple(CoverageEnv(regions["rectangle"], world, params.coverage, pay=pay, **options)
+                 for pay in (Pay(0.01), shaped_pay))
+    for env in envs:
         env.reset(seed=3, start="corner")
+    return envs
+
+
+def test_lloyd_shaping_pays_the_progress_of_each_cell(params, regions):
+    """``Pay.lloyd`` adds β(Φ(s') − Φ(s)) to each buoy's pay: over an episode the added pay sums to
+    β(Φ(s_T) − Φ(s_0)) for every buoy, whatever the actions, and nothing else changes."""
+    plain, shaped = paid_with_and_without(params, regions, Pay(0.01, lloyd=2.0))
     start, added = shaped.potential.copy(), np.zeros((2, 4))
     rng = np.random.default_rng(0)
     for _ in range(10):
@@ -236,13 +243,7 @@ def test_lloyd_move_pays_the_first_order_of_each_buoys_own_move(params, regions)
     buoy toward its cell's centroid."""
     from replicate.world import rewards
 
-    world = dataclasses.replace(params.world, n_agents=4, episode_length=10)
-    options = {"n_envs": 2, "reward": "cr", "cr": params.cr_reward, "observation": "local", "wall": True,
-               "union_credit": "difference"}
-    plain = CoverageEnv(regions["rectangle"], world, params.coverage, pay=Pay(0.01), **options)
-    shaped = CoverageEnv(regions["rectangle"], world, params.coverage, pay=Pay(0.01, lloyd_move=2.0), **options)
-    for env in (plain, shaped):
-        env.reset(seed=3, start="corner")
+    plain, shaped = paid_with_and_without(params, regions, Pay(0.01, lloyd_move=2.0))
     points, radius = shaped.water_points, params.coverage.radius
     cost = rewards.lloyd_potential(shaped.pos, None, points, radius).sum(-1)  # [E]
     push = np.zeros((2, 4, 2))

@@ -4,7 +4,8 @@ it hears covers it.
 
 The lake's water is read off a fine grid of the lake (``WaterMask``), exactly: the grid decides a point in a cell
 no shore edge passes through, the outline itself a point in a cell the shore may cross. The cover is a compiled
-loop over the buoys each buoy hears, as the uncovered-water sensor's (``sensors.uncovered_water``).
+loop over the buoys each buoy hears (``heard_cover``), which the uncovered-water sensor (``sensors.uncovered_water``)
+reads too.
 """
 
 from __future__ import annotations
@@ -91,19 +92,25 @@ def _covered(pos, alive, offsets, radius, comm_range, out):  # pragma: no cover 
                         out[b, i, c] = 1.0
 
 
+def heard_cover(pos: np.ndarray, offsets: np.ndarray, radius: float, comm_range: float,
+                alive: np.ndarray | None = None) -> np.ndarray:
+    """Whether another buoy that each buoy hears (within ``comm_range``) covers each point around it (within
+    ``radius``, the coverage range R): pos [E, N, 2], offsets [K, 2] from the buoy → [E, N, K], 1.0 or 0.0."""
+    live = np.ones(pos.shape[:2], dtype=np.bool_) if alive is None else np.ascontiguousarray(alive, dtype=np.bool_)
+    out = np.empty((*pos.shape[:2], len(offsets)))
+    _covered(np.ascontiguousarray(pos, dtype=np.float64), live, np.ascontiguousarray(offsets, dtype=np.float64),
+             float(radius), float(comm_range), out)
+    return out
+
+
 def local_raster(pos: np.ndarray, water: WaterMask, offsets: np.ndarray, radius: float, comm_range: float,
                  alive: np.ndarray | None = None) -> np.ndarray:
     """A small map around each buoy, as LPAC's robots see theirs (Agarwal et al. 2025): at each cell's centre
     (``raster_offsets``, in the world's compass, not turned with the buoy), whether it is water (``water``, the
     lake's outline) and whether another buoy heard within ``comm_range`` covers it (within ``radius``, the coverage
     range R). pos [E, N, 2], offsets [C, 2] → [E, N, 2C] in ``RASTER_CHANNELS``' order, 1 or 0."""
-    e, n = pos.shape[:2]
     wet = water.at(pos[:, :, None, :] + offsets[None, None]).astype(np.float64)  # [E, N, C]
-    live = np.ones((e, n), dtype=np.bool_) if alive is None else np.ascontiguousarray(alive, dtype=np.bool_)
-    covered = np.empty((e, n, len(offsets)))
-    _covered(np.ascontiguousarray(pos, dtype=np.float64), live, np.ascontiguousarray(offsets, dtype=np.float64),
-             float(radius), float(comm_range), covered)
-    return np.concatenate([wet, covered], axis=-1)
+    return np.concatenate([wet, heard_cover(pos, offsets, radius, comm_range, alive)], axis=-1)
 
 
 def for_sensors(water: Polygon, config) -> tuple[WaterMask, np.ndarray] | None:

@@ -14,7 +14,7 @@ import shapely
 from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
-from replicate.world.local_map import RASTER_CHANNELS, WaterMask, local_raster, raster_cells
+from replicate.world.local_map import RASTER_CHANNELS, WaterMask, heard_cover, local_raster, raster_cells
 
 
 def own_velocity(vel: np.ndarray) -> np.ndarray:
@@ -197,31 +197,6 @@ def shore_distances_reference(pos: np.ndarray, water: Polygon, directions: np.nd
     return np.minimum(dist, max_range).reshape(*pos.shape[:-1], len(directions))
 
 
-@numba.njit(cache=True)
-def _uncovered(pos, alive, shore, offsets, radii, radius, comm_range, out):  # pragma: no cover - compiled
-    e, n, rays, points = pos.shape[0], pos.shape[1], offsets.shape[0], offsets.shape[1]
-    for b in range(e):
-        for i in range(n):
-            for r in range(rays):
-                free = 0
-                for p in range(points):
-                    if not radii[p] < shore[b, i, r]:
-                        continue  # past the ray's first shore crossing: not known to be water
-                    covered = False
-                    for j in range(n):
-                        if j == i or not alive[b, j]:
-                            continue
-                        rx, ry = pos[b, j, 0] - pos[b, i, 0], pos[b, j, 1] - pos[b, i, 1]
-                        if np.sqrt(rx * rx + ry * ry) > comm_range:
-                            continue  # not heard
-                        gx, gy = offsets[r, p, 0] - rx, offsets[r, p, 1] - ry
-                        if gx * gx + gy * gy <= radius * radius:
-                            covered = True
-                            break
-                    free += not covered
-                out[b, i, r] = free / points
-
-
 def uncovered_water(pos: np.ndarray, shore: np.ndarray, directions: np.ndarray, radii: tuple[float, ...],
                     radius: float, comm_range: float, alive: np.ndarray | None = None) -> np.ndarray:
     """How much of each ray's water no other buoy covers: the share of the points at ``radii`` m from the buoy in
@@ -231,12 +206,10 @@ def uncovered_water(pos: np.ndarray, shore: np.ndarray, directions: np.ndarray, 
     disc adds water to the fleet's union; points beyond it, where uncovered water lies. pos: [E, N, 2];
     shore: [E, N, rays]; directions: [rays, 2] → [E, N, rays] in [0, 1]."""
     r = np.asarray(radii, dtype=np.float64)
-    offsets = np.ascontiguousarray(r[None, :, None] * directions[:, None, :])  # [rays, P, 2], relative to the buoy
-    live = np.ones(pos.shape[:2], dtype=np.bool_) if alive is None else np.ascontiguousarray(alive, dtype=np.bool_)
-    out = np.empty(shore.shape)
-    _uncovered(np.ascontiguousarray(pos, dtype=np.float64), live, np.ascontiguousarray(shore, dtype=np.float64),
-               offsets, r, float(radius), float(comm_range), out)
-    return out
+    offsets = r[None, :, None] * directions[:, None, :]  # [rays, P, 2], relative to the buoy
+    covered = heard_cover(pos, offsets.reshape(-1, 2), radius, comm_range, alive).reshape(*shore.shape, len(r))
+    water = r < shore[..., None]  # [E, N, rays, P]: before the ray's first shore crossing
+    return (water & (covered == 0.0)).sum(-1) / len(r)
 
 
 def columns(k: int, rays: int, uncovered: bool = False, raster: int = 0) -> list[str]:
