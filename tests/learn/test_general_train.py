@@ -335,3 +335,19 @@ def test_the_evaluation_suite_scores_every_cell(two_runs, tmp_path):
         assert {"decentralised_lloyd", "planner"} <= set(found) and max(found.values()) <= best + 0.01
         assert max(best, c["coverage"]["mean"]) <= bound  # the bound holds every method and the best layout
     assert json.loads((tmp_path / "g.json").read_text())["cells"] == result["cells"]
+
+
+def test_grown_horizon_trains_each_world_as_long_as_it_is_evaluated(params, tmp_path):
+    """``general.grown_horizon``: a training lake larger than the paper's area plays episodes of its evaluation's T
+    (``scenario.horizon``), the square at the paper's area its ``episode_length``; every step of both is stored."""
+    from replicate.world.scenario import horizon
+
+    gc = dataclasses.replace(tiny(params), lake_fleet=(15, 15), lake_ratio=(0.6, 0.6), grown_horizon=True,
+                             episode_length=10, episodes=32, buffer_size=20000)
+    trainer = GeneralTrainer(params, 4, tmp_path / "grown", progress=False, config=gc)
+    square, lake = trainer.worlds
+    long = horizon(gc, lake.region, params.world.region_area)
+    assert square.steps == 10 < long == lake.steps
+    assert [w.steps for w, _, _ in trainer.validation] == [10, 10, long]  # validated on the same horizons
+    trainer.run()  # 4 batches of 8 environments, the worlds in turn
+    assert trainer.loop.memories[0].size == 2 * 8 * 10 + 2 * 8 * long

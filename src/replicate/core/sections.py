@@ -328,7 +328,10 @@ class GeneralConfig:
     suite: SuiteConfig
     lloyd_shaping: NonNegative = 0.0  # weight of the pay for each step's progress of Lloyd's cost of each buoy's cell
     lloyd_move: NonNegative = 0.0  # weight of the pay for what each buoy's own move took off Lloyd's cost (1st order)
-    OPTIONAL: ClassVar[tuple[str, ...]] = ("lloyd_shaping", "lloyd_move")  # left out of a run's identity at default
+    grown_horizon: bool = False  # a training world's episodes as long as an evaluation's there (T grown with its
+    # linear size, ``scenario.horizon``); False: episode_length steps in every world
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("lloyd_shaping", "lloyd_move", "grown_horizon")  # left out of a run's
+    # identity at their default
 
     @model_validator(mode="after")
     def check(self):

@@ -147,8 +147,8 @@ class GeneralTrainer:
         obs = env.reset(start=start)
         (writer,) = self.loop.writers()
         losses, q_abs = [], []
-        for t in range(gc.episode_length):
-            if lose and t == gc.episode_length // 2:
+        for t in range(world.steps):
+            if lose and t == world.steps // 2:
                 env.lose(lose, rng)
                 obs = env.observe()
             live = np.ones((env.n_envs, world.n_agents), bool) if env.alive is None else env.alive.copy()
@@ -156,7 +156,7 @@ class GeneralTrainer:
             taught = self.labels(env)
             act = self.agent.act(obs, sigma, self.noise, pos, live).numpy()
             step = env.step(act)
-            writer.push(t == gc.episode_length - 1, live=live, obs=obs, act=act, rew=step.pay, pos=pos,
+            writer.push(t == world.steps - 1, live=live, obs=obs, act=act, rew=step.pay, pos=pos,
                         next_obs=step.obs, next_pos=env.pos.copy(), next_live=live,  # bootstrap on those in service
                         **taught)
             obs = step.obs
@@ -175,7 +175,7 @@ class GeneralTrainer:
         for world, start, seed in self.validation:
             env = world.env
             obs = env.reset(seed=seed, start=start)  # the same starts every time
-            for _ in range(self.gc.episode_length):
+            for _ in range(world.steps):
                 obs = env.step(self.agent.policy(obs, env.pos, env.alive).numpy()).obs
             scores.append(float(env.coverage_fraction().mean()))
         score = float(np.mean(scores))

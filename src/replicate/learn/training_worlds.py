@@ -30,6 +30,11 @@ class World:
     n_agents: int
     env: CoverageEnv
 
+    @property
+    def steps(self) -> int:
+        """T, the steps of an episode in this world."""
+        return self.env.world.episode_length
+
 
 def training_lakes(params: Params, gc: GeneralConfig) -> list[tuple[Region, int]]:
     """(region, N) of the generated training lakes, the same for every seed."""

@@ -134,6 +134,7 @@ def finetuned(policy: Path, module, meta: dict, params: Params, region, steps: i
         first = "net.net.0.weight" if symmetry != "none" else "net.0.weight"
         learner = dataclasses.replace(gc.learner, hidden=int(weights[first].shape[0]), symmetry=symmetry)
         gc = dataclasses.replace(gc, episodes=episodes - episodes % gc.n_envs, episode_length=steps,
+                                 grown_horizon=False,  # ``steps`` is this lake's T already
                                  sensors=SensorsConfig(**meta["sensor_config"]), learner=learner)
         trainer = GeneralTrainer(params, seed, out / "finetune", progress, gc, worlds=[(region, params.world.n_agents)],
                                  actor=weights)
