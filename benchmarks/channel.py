@@ -24,14 +24,15 @@ from replicate.compare.evaluate import SameEpisodes, evaluate_policy, fleet_poli
 from replicate.compare.rivals import general_baselines
 from replicate.compare.suite import at_density
 from replicate.core import artifacts
+from replicate.core.artifacts import CheckpointError
 from replicate.core.params import load_params
+from replicate.core.schema import ConfigError
 from replicate.core.sections import SensorsConfig
 from replicate.world.regions import make_region
 from replicate.world.scenario import horizon
 
 ROOT = Path(__file__).resolve().parents[1]
-BASELINE = "yardstick/runs/general-s{}/policy.pt"  # the standing baseline's tuning seeds (stage train_yardstick)
-SEEDS = range(1, 9)
+BASELINE = "yardstick/runs/general-s{}/policy.pt"  # the standing baseline's seeds (yardstick.seeds, train_yardstick)
 N = 50
 SETTING = ("the rectangle at 1 m² per buoy (as `evaluate --policy --region rectangle --n-agents 50`), 50 buoys, "
            "corner start, still water, {} episodes from evaluate.seed; every seed on the same episodes")
@@ -48,8 +49,8 @@ def channel(params, episodes: int):
 def record(params, candidate: Path, episodes: int) -> dict:
     """Every seed of both versions, tuned Lloyd and the planner on the same episodes → the record."""
     params, region, _ = channel(params, episodes)
-    seeds = {f"baseline/{s}": ROOT / BASELINE.format(s) for s in SEEDS}
-    seeds |= {f"candidate/{s}": candidate / f"general-s{s}" / "policy.pt" for s in SEEDS}
+    seeds = {f"baseline/{s}": ROOT / BASELINE.format(s) for s in params.yardstick.seeds}
+    seeds |= {f"candidate/{s}": candidate / f"general-s{s}" / "policy.pt" for s in params.yardstick.seeds}
     first = seeds.pop("baseline/1")
     out = evaluate_policy(first, region, params, N, "corner", seeds=seeds, naive=False, geodesic=False,
                           planner=True)
@@ -92,17 +93,29 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--candidate", type=Path, help="a folder of general-s1..8/policy.pt")
     ap.add_argument("--out", type=Path, help="the record to write (JSON)")
     ap.add_argument("--force", action="store_true", help="replace --out")
-    ap.add_argument("--episodes", type=int, default=10)
+    ap.add_argument("--episodes", type=int, default=None, help="episodes (default: 10 for a record, 4 for --trace)")
     ap.add_argument("--trace", action="store_true", help="print the fleets' positions over time instead")
     ap.add_argument("--policy", type=Path, default=ROOT / "policies" / "general.pt", help="the policy --trace reads")
     args = ap.parse_args(argv)
+    if args.episodes is not None and args.episodes < 1:
+        ap.error(f"--episodes must be at least 1, got {args.episodes}")
+    if args.trace == (args.candidate is not None or args.out is not None) or \
+            (not args.trace and (args.candidate is None or args.out is None)):
+        ap.error("give --candidate DIR and --out FILE, or --trace (with --policy), not both")
+    try:
+        return run(args)
+    except (ConfigError, CheckpointError, OSError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+def run(args: argparse.Namespace) -> int:
     params = load_params(args.params)
     if args.trace:
-        trace(params, args.policy, 4)
+        trace(params, args.policy, args.episodes or 4)
         return 0
-    if args.candidate is None or args.out is None:
-        ap.error("give --candidate DIR and --out FILE, or --trace")
-    missing = [p for s in SEEDS for p in (args.candidate / f"general-s{s}" / "policy.pt", ROOT / BASELINE.format(s))
+    seeds = params.yardstick.seeds
+    missing = [p for s in seeds for p in (args.candidate / f"general-s{s}" / "policy.pt", ROOT / BASELINE.format(s))
                if not p.is_file()]
     if missing:
         print(f"error: {missing[0]} is missing; export each seed (`replicate export RUN --out RUN/policy.pt`) and "
@@ -111,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.out.exists() and not args.force:
         print(f"error: {args.out} exists; choose another --out or pass --force", file=sys.stderr)
         return 2
-    artifacts.write_json(args.out, record(params, args.candidate, args.episodes))
+    artifacts.write_json(args.out, record(params, args.candidate, args.episodes or 10))
     print(f"wrote {args.out}")
     return 0
 

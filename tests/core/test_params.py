@@ -134,3 +134,15 @@ def test_ablation_covers_every_change_from_paper_to_tuned(params):
         assert all(derived[k] == ref[k] for k in keys)
         assert f"(`{change}`)" in deviations, f"docs/DEVIATIONS.md has no row for the {change} change"
     assert run_config(params, f"{ab.base}-without-geofence", "cr").algo.geofence == ref["geofence"]
+
+
+def test_imitation_until_is_refused_without_imitation_before():
+    """``general.learner.imitation_until`` is read by ``imitation: before`` only: set with another mode it is an
+    error that names both, not a silent change of the run's identity."""
+    from replicate.core.sections import SharedLearnerConfig
+
+    assert SharedLearnerConfig(imitation="before", imitation_until=0.5).imitation_until == 0.5
+    with pytest.raises(ConfigError, match="imitation_until .* 'before' only, and imitation is 'beside'"):
+        SharedLearnerConfig(imitation="beside", imitation_until=0.5)
+    with pytest.raises(ValueError, match="imitation_until"):
+        SharedLearnerConfig(imitation="before", imitation_until=1.0)  # 1: never hands over, which is ``alone``

@@ -75,3 +75,20 @@ def test_a_real_lake_at_the_papers_area_gets_the_papers_horizon(params, lake):
     assert grown_horizon(t, 4 * area, area) == 2 * t
     assert grown_horizon(t, 4 * area * (1 + 1e-6), area) == 2 * t + 1
     assert grown_horizon(t, area / 4, area) == t  # never below T
+
+
+def test_a_general_world_lasts_its_episode_length_unless_grown(params, regions):
+    """A training world's episodes last ``general.episode_length`` (``grown_horizon`` off) or its evaluation's T
+    (on); the evaluation's world lasts its T either way (``general_evaluation_env``)."""
+    from replicate.compare.suite import at_density
+    from replicate.world.scenario import general_evaluation_env
+
+    long = at_density(regions["rectangle"], params.world.n_agents, 20)  # 20 buoys at the paper's density
+    t, grown = params.general.episode_length, horizon(params.general, long, params.world.region_area)
+    assert grown > t
+    assert general_env(params, params.general, long, 20, 1, 0).world.episode_length == t
+    on = dataclasses.replace(params.general, grown_horizon=True)
+    assert general_env(params, on, long, 20, 1, 0).world.episode_length == grown
+    for gc in (params.general, on):
+        env, steps = general_evaluation_env(dataclasses.replace(params, general=gc), long, 20, 1, None, None)
+        assert steps == env.world.episode_length == grown

@@ -217,8 +217,9 @@ class SharedLearnerConfig:
     # action for every buoy at every state the learner visits (DAgger's labels), imitated beside the actor-critic
     # loss, alone, or alone before the actor-critic takes over (``imitation_until``)
     imitation_weight: NonNegative = 1.0  # the weight of the imitation loss, mean squared action error per buoy
-    imitation_until: Annotated[Num, In(0, 1, open_lo=True)] = 0.25  # "before": the share of the training's batches
-    # in which the actor imitates alone; the actor-critic alone after it, and the teacher labels no more
+    imitation_until: Annotated[Num, In(0, 1, open_lo=True, open_hi=True)] = 0.25  # "before": the share of the
+    # training's batches (rounded up) in which the actor imitates alone; the actor-critic alone after it, and the
+    # teacher labels no more
     hops: Annotated[Int, In(0, 3)] = 0  # rounds of messages between the buoys that hear each other
     # (``learn.messages``); 0: the actor reads its own sensors only
     OPTIONAL: ClassVar[tuple[str, ...]] = ("symmetry", "imitation", "imitation_weight", "imitation_until",
@@ -229,6 +230,9 @@ class SharedLearnerConfig:
         if self.hops and self.symmetry == "d4":
             raise ConfigError("general.learner: hops (messages) run in each buoy's own compass frame: set symmetry "
                               "to d4_frame (or none), not d4")
+        if self.imitation != "before" and self.imitation_until != 0.25:
+            raise ConfigError(f"general.learner.imitation_until ({self.imitation_until}) is read by imitation "
+                              f"'before' only, and imitation is {self.imitation!r}: set one or leave it at 0.25")
         return self
 
 

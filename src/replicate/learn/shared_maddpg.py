@@ -178,7 +178,8 @@ class SharedMADDPG:
         self.imitation = "alone" if cfg.imitation == "before" else cfg.imitation  # what the actor's loss is now
 
     def hand_over(self) -> None:
-        """``imitation: before``: the imitation ends, the actor-critic alone trains the actor from now on."""
+        """``imitation: before``: the imitation ends, the actor-critic alone trains the actor from now on (with the
+        same optimiser: its moments, built on the imitation loss, carry on, as in fine-tuning from a cloned actor)."""
         self.imitation = "none"
 
     def update(self, b: Batch) -> dict[str, float]:

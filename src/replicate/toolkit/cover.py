@@ -132,7 +132,8 @@ def finetuned(policy: Path, module, meta: dict, params: Params, region, steps: i
     try:
         symmetry = meta.get("symmetry", "none")  # a symmetric actor's MLP sits inside its average
         first = "net.net.0.weight" if symmetry != "none" else "net.0.weight"
-        learner = dataclasses.replace(gc.learner, hidden=int(weights[first].shape[0]), symmetry=symmetry)
+        learner = dataclasses.replace(gc.learner, hidden=int(weights[first].shape[0]), symmetry=symmetry,
+                                      imitation="none", imitation_until=0.25)  # fine-tuning has no teacher
         gc = dataclasses.replace(gc, episodes=episodes - episodes % gc.n_envs, episode_length=steps,
                                  grown_horizon=False,  # ``steps`` is this lake's T already
                                  sensors=SensorsConfig(**meta["sensor_config"]), learner=learner)
