@@ -198,6 +198,9 @@ class RegressionConfig:
 Symmetry = Literal["none", "d4", "d4_frame"]
 
 
+IMITATION_UNTIL = 0.25  # the default share of imitation before the actor-critic, and the value no other mode reads
+
+
 @section
 class SharedLearnerConfig:
     """The networks and optimisers of ``shared_maddpg.SharedMADDPG``."""
@@ -217,8 +220,8 @@ class SharedLearnerConfig:
     # action for every buoy at every state the learner visits (DAgger's labels), imitated beside the actor-critic
     # loss, alone, or alone before the actor-critic takes over (``imitation_until``)
     imitation_weight: NonNegative = 1.0  # the weight of the imitation loss, mean squared action error per buoy
-    imitation_until: Annotated[Num, In(0, 1, open_lo=True, open_hi=True)] = 0.25  # "before": the share of the
-    # training's batches (rounded up) in which the actor imitates alone; the actor-critic alone after it, and the
+    imitation_until: Annotated[Num, In(0, 1, open_lo=True, open_hi=True)] = IMITATION_UNTIL  # "before": the share
+    # of the training's batches (rounded up) in which the actor imitates alone; the actor-critic alone after it, and the
     # teacher labels no more
     hops: Annotated[Int, In(0, 3)] = 0  # rounds of messages between the buoys that hear each other
     # (``learn.messages``); 0: the actor reads its own sensors only
@@ -230,9 +233,10 @@ class SharedLearnerConfig:
         if self.hops and self.symmetry == "d4":
             raise ConfigError("general.learner: hops (messages) run in each buoy's own compass frame: set symmetry "
                               "to d4_frame (or none), not d4")
-        if self.imitation != "before" and self.imitation_until != 0.25:
+        if self.imitation != "before" and self.imitation_until != IMITATION_UNTIL:
             raise ConfigError(f"general.learner.imitation_until ({self.imitation_until}) is read by imitation "
-                              f"'before' only, and imitation is {self.imitation!r}: set one or leave it at 0.25")
+                              f"'before' only, and imitation is {self.imitation!r}: set one or leave it at "
+                              f"{IMITATION_UNTIL}")
         return self
 
 

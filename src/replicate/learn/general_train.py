@@ -85,7 +85,6 @@ class GeneralTrainer:
         if actor is not None:
             self.agent.actor.load_state_dict(actor)
             self.agent.actor_target.load_state_dict(actor)
-        self.labelled = imitating  # the memory keeps a teacher's label beside each transition
         memory = Replay(self.gc.buffer_size, max(w.n_agents for w in self.worlds), obs_dim, fleets=True,
                         expert=imitating)
         self.loop = TrainingLoop(self.agent, self.gc, [memory], [np.random.default_rng(streams[3])], stacked=False)
@@ -128,7 +127,7 @@ class GeneralTrainer:
     def labels(self, env: CoverageEnv) -> dict[str, np.ndarray]:
         """The teacher's actions [E, N, 2] in ``env``'s state, as the memory keeps them: none without a teacher,
         zeros once it has handed over."""
-        if not self.labelled:
+        if self.gc.learner.imitation == "none":  # the memory keeps no labels
             return {}
         if self.teacher is None:
             return {"expert": np.zeros(env.pos.shape, np.float32)}

@@ -36,7 +36,7 @@ from replicate.compare.evaluate import (
 from replicate.core import artifacts
 from replicate.core.params import Params, run_config
 from replicate.core.schema import ConfigError
-from replicate.core.sections import SensorsConfig
+from replicate.core.sections import IMITATION_UNTIL, SensorsConfig
 from replicate.learn.general_train import GeneralTrainer
 from replicate.learn.train import train
 from replicate.toolkit.export import export_general
@@ -133,7 +133,7 @@ def finetuned(policy: Path, module, meta: dict, params: Params, region, steps: i
         symmetry = meta.get("symmetry", "none")  # a symmetric actor's MLP sits inside its average
         first = "net.net.0.weight" if symmetry != "none" else "net.0.weight"
         learner = dataclasses.replace(gc.learner, hidden=int(weights[first].shape[0]), symmetry=symmetry,
-                                      imitation="none", imitation_until=0.25)  # fine-tuning has no teacher
+                                      imitation="none", imitation_until=IMITATION_UNTIL)  # no teacher here
         gc = dataclasses.replace(gc, episodes=episodes - episodes % gc.n_envs, episode_length=steps,
                                  grown_horizon=False,  # ``steps`` is this lake's T already
                                  sensors=SensorsConfig(**meta["sensor_config"]), learner=learner)
