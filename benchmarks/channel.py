@@ -22,13 +22,12 @@ import numpy as np
 
 from replicate.compare.evaluate import SameEpisodes, evaluate_policy, fleet_policy, read_general_policy
 from replicate.compare.rivals import general_baselines
-from replicate.compare.suite import at_density
 from replicate.core import artifacts
 from replicate.core.artifacts import CheckpointError
 from replicate.core.params import load_params
 from replicate.core.schema import ConfigError
 from replicate.core.sections import SensorsConfig
-from replicate.world.regions import make_region
+from replicate.world.regions import at_density, make_region
 from replicate.world.scenario import horizon
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -71,8 +71,9 @@ def test_every_evaluated_lake_keeps_the_tenth_of_a_radius_grid(params):
     """The cap on candidate points (``MAX_CANDIDATES``) is for lakes kept in metres: no lake, fleet and density of
     the evaluation suite or the yardstick reaches it, so their best layouts are those the grid of R/10 finds."""
     from replicate.compare import best_layout as bl
-    from replicate.compare.suite import at_density, suite_cells, suite_lakes
+    from replicate.compare.suite import suite_cells, suite_lakes
     from replicate.compare.yardstick import yardstick_cells, yardstick_lakes
+    from replicate.world.regions import at_density
 
     radius = params.coverage.radius
     worlds = [(suite_lakes(params), suite_cells(params)), (yardstick_lakes(params), yardstick_cells(params))]
@@ -195,7 +196,8 @@ def test_one_buoys_water_tightens_the_bound_only_on_the_narrowest_rectangle(para
     buoy's water sees."""
     import shapely
 
-    from replicate.compare.suite import at_density, lake_kinds, suite_lake
+    from replicate.compare.suite import lake_kinds, suite_lake
+    from replicate.world.regions import at_density
 
     su, r = params.general.suite, params.coverage.radius
     narrow = []

@@ -351,3 +351,28 @@ def test_grown_horizon_trains_each_world_as_long_as_it_is_evaluated(params, tmp_
     assert [w.steps for w, _, _ in trainer.validation] == [10, 10, long]  # validated on the same horizons
     trainer.run()  # 4 batches of 8 environments, the worlds in turn
     assert trainer.loop.memories[0].size == 2 * 8 * 10 + 2 * 8 * long
+
+
+def test_channel_world_is_the_rectangle_at_the_papers_density_trained_for_its_evaluation_horizon(params, tmp_path):
+    """``general.channel_fleet``: one more world, the rectangle with that many buoys at the paper's density (its area
+    N · A(Reg)/N_paper, its shape the rectangle's), whose episodes last its evaluation's T while the other worlds keep
+    ``episode_length``; the baselines' gains are tuned on it too, and at 0 there is none."""
+    from replicate.learn.training_worlds import baseline_worlds
+    from replicate.world.scenario import horizon
+
+    gc = dataclasses.replace(tiny(params), channel_fleet=20, episode_length=10, episodes=24, buffer_size=20000)
+    trainer = GeneralTrainer(params, 4, tmp_path / "channel", progress=False, config=gc)
+    square, lake, channel = trainer.worlds
+    area = params.world.region_area
+    assert (channel.region.name, channel.n_agents) == ("rectangle", 20)
+    assert channel.region.polygon.area == pytest.approx(20 / params.world.n_agents * area)
+    minx, miny, maxx, maxy = channel.region.polygon.bounds
+    assert (maxx - minx) / (maxy - miny) == pytest.approx(9.0)  # the rectangle's 9 × 1, scaled
+    long = horizon(gc, channel.region, area)
+    assert square.steps == lake.steps == 10 < long == channel.steps
+    assert [(w.n_agents, s, w.steps) for w, s, _ in trainer.validation][-2:] == [(20, "corner", long),
+                                                                                (20, "random", long)]
+    trainer.run()  # 3 batches of 8 environments, one in each world
+    assert trainer.loop.memories[0].size == 2 * 8 * 10 + 8 * long
+    assert [n for _, n in baseline_worlds(params, gc)][-1] == 20
+    assert len(baseline_worlds(params, dataclasses.replace(gc, channel_fleet=0))) == 2

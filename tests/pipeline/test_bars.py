@@ -13,10 +13,11 @@ from replicate.compare import baselines
 from replicate.compare.best_layout import best_coverage
 from replicate.compare.evaluate import rollout
 from replicate.compare.rivals import general_baselines
-from replicate.compare.suite import SuiteCell, at_density, drift_heading, suite_cells, suite_event, suite_lake
+from replicate.compare.suite import SuiteCell, drift_heading, suite_cells, suite_event, suite_lake
 from replicate.core.studies import StartsConfig
 from replicate.pipeline.report.general import general_checks
 from replicate.world.coverage import coverage_fraction
+from replicate.world.regions import at_density
 from replicate.world.scenario import general_evaluation_env, horizon
 
 from ..conftest import ROOT

@@ -80,7 +80,7 @@ def test_a_real_lake_at_the_papers_area_gets_the_papers_horizon(params, lake):
 def test_a_general_world_lasts_its_episode_length_unless_grown(params, regions):
     """A training world's episodes last ``general.episode_length`` (``grown_horizon`` off) or its evaluation's T
     (on); the evaluation's world lasts its T either way (``general_evaluation_env``)."""
-    from replicate.compare.suite import at_density
+    from replicate.world.regions import at_density
     from replicate.world.scenario import general_evaluation_env
 
     long = at_density(regions["rectangle"], params.world.n_agents, 20)  # 20 buoys at the paper's density

@@ -11,12 +11,11 @@ Its lakes are of four kinds, never pooled in one number (``LakeKind``):
   reservoirs), each drawn for the paper's 9 buoys.
 
 The named regions run the fleets of ``named_fleets``, the others those of ``lake_fleets``; a cell scales its lake to
-the fleet's density (``at_density``). The yardstick (``yardstick``) sizes its events as the suite does.
+the fleet's density (``regions.at_density``). The yardstick (``yardstick``) sizes its events as the suite does.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import zlib
 from dataclasses import dataclass
@@ -24,7 +23,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from shapely import affinity
 from shapely.geometry import Polygon
 
 from replicate.world.currents import Current, lake_vortex
@@ -73,13 +71,6 @@ def suite_lake(params, name: str) -> tuple[Region, int]:
 def suite_lakes(params) -> dict[str, tuple[Region, int]]:
     """Every lake of the suite → (region, the fleet it is drawn for)."""
     return {name: suite_lake(params, name) for name in lake_kinds(params)}
-
-
-def at_density(region: Region, drawn_for: int, n_agents: int) -> Region:
-    """``region`` scaled for ``n_agents`` buoys at the density it was drawn for (the same N·A(Cov)/A(Reg))."""
-    s = (n_agents / drawn_for) ** 0.5
-    return dataclasses.replace(region, polygon=affinity.scale(region.polygon, s, s, origin=(0, 0)),
-                               scale=region.scale / s)
 
 
 def suite_cells(params) -> list[SuiteCell]:

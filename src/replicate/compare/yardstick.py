@@ -26,7 +26,7 @@ import numpy as np
 from replicate.compare import stats
 from replicate.compare.evaluate import evaluate_policy, read_general_policy
 from replicate.compare.rivals import lloyd_name
-from replicate.compare.suite import at_density, suite_event
+from replicate.compare.suite import suite_event
 from replicate.core.artifacts import CheckpointError
 from replicate.core.executor import map_jobs
 from replicate.core.params import Params, load_params
@@ -34,7 +34,7 @@ from replicate.core.schema import ConfigError
 from replicate.learn.process import training_process
 from replicate.learn.runs import SEED_POLICY, finished_general, general_identity, seed_folder
 from replicate.world.lakes import yardstick
-from replicate.world.regions import Region
+from replicate.world.regions import Region, at_density
 from replicate.world.scenario import named_lakes
 
 

@@ -338,8 +338,10 @@ class GeneralConfig:
     lloyd_move: NonNegative = 0.0  # weight of the pay for what each buoy's own move took off Lloyd's cost (1st order)
     grown_horizon: bool = False  # a training world's episodes as long as an evaluation's there (T grown with its
     # linear size, ``scenario.horizon``); False: episode_length steps in every world
-    OPTIONAL: ClassVar[tuple[str, ...]] = ("lloyd_shaping", "lloyd_move", "grown_horizon")  # left out of a run's
-    # identity at their default
+    channel_fleet: Annotated[Int, In(0, MAX_AGENTS)] = 0  # N of one more world: the rectangle at the paper's density
+    # (a long, crowded channel), its episodes of its evaluation's T; 0: none
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("lloyd_shaping", "lloyd_move", "grown_horizon",
+                                           "channel_fleet")  # left out of a run's identity at their default
 
     @model_validator(mode="after")
     def check(self):
@@ -351,6 +353,8 @@ class GeneralConfig:
                               f"and {list(self.lake_ratio)}")
         if not self.seeds:
             raise ConfigError("general.seeds: at least one seed")
+        if self.channel_fleet == 1:
+            raise ConfigError("general.channel_fleet: 0 (no channel world) or a fleet of at least 2 buoys, got 1")
         if self.learner.symmetry != "none" and self.sensors.rays % 4:
             raise ConfigError(f"general.learner.symmetry {self.learner.symmetry}: the compass's turns permute the "
                               "shore rays only when their number is a multiple of 4, got general.sensors.rays = "

@@ -14,9 +14,9 @@ term or alone (DAgger's relabelling of the learner's own states, Ross et al. 201
 ``imitation_until`` of the batches, after which the actor-critic alone trains the actor and the teacher is asked
 no more.
 
-The run keeps the actor that covered best on its validation starts (every named region from the corner, each
-world scattered, fixed seeds drawn from the run's seed) and writes into its folder: ``actor.pt`` (weights and
-the sensors it reads), ``curve.csv.gz`` (one row per batch), ``run.json``.
+The run keeps the actor that covered best on its validation starts (every named region and the channel from the
+corner, each world scattered, fixed seeds drawn from the run's seed) and writes into its folder: ``actor.pt``
+(weights and the sensors it reads), ``curve.csv.gz`` (one row per batch), ``run.json``.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from replicate.learn.loop import TrainingLoop
 from replicate.learn.replay import Replay
 from replicate.learn.runs import general_identity
 from replicate.learn.shared_maddpg import SharedMADDPG
-from replicate.learn.training_worlds import World, make_worlds
+from replicate.learn.training_worlds import World, channel_world, make_worlds
 from replicate.world.currents import random_current
 from replicate.world.env import CoverageEnv, observation_columns
 from replicate.world.regions import Region
@@ -76,7 +76,8 @@ class GeneralTrainer:
             rng = np.random.default_rng(streams[0])
             self.worlds = [World(r, n, general_env(params, self.gc, r, n, self.gc.n_envs,
                                                  np.random.SeedSequence(int(rng.integers(2**31))))) for r, n in worlds]
-        self.corner_validation = {w.region.name for w in self.worlds} if worlds else set(self.gc.regions)
+        self.corner_validation = {w.region.name for w in self.worlds} if worlds else \
+            set(self.gc.regions) | {r.name for r, _ in channel_world(params, self.gc)}
         self.validation = self.validation_worlds(np.random.default_rng(streams[4]))
         columns = observation_columns("local", self.gc.sensors)
         obs_dim = len(columns)
@@ -91,11 +92,12 @@ class GeneralTrainer:
         self.rows: list[list] = []
 
     def validation_worlds(self, rng: np.random.Generator) -> list[tuple[World, str, int]]:
-        """Fixed validation starts (world, start, seed): every named region from the corner patch, every world
-        scattered; 4 episodes each."""
+        """Fixed validation starts (world, start, seed): every named region and the channel from the corner
+        patch, every world scattered; 4 episodes each."""
         out = []
         for w in self.worlds:
-            env = general_env(self.params, self.gc, w.region, w.n_agents, 4, 0, reward=False)
+            env = general_env(self.params, self.gc, w.region, w.n_agents, 4, 0, reward=False,
+                              grown=w.steps != self.gc.episode_length)
             starts = ("corner", "random") if w.region.name in self.corner_validation else ("random",)
             out += [(World(w.region, w.n_agents, env), s, int(rng.integers(2**31))) for s in starts]
         return out

@@ -14,7 +14,6 @@ from replicate.compare.evaluate import BASELINES, general_episode
 from replicate.compare.rivals import lloyd_name
 from replicate.compare.suite import (
     SuiteCell,
-    at_density,
     drift_heading,
     lake_kinds,
     suite_event,
@@ -34,7 +33,7 @@ from replicate.world.coverage import coverage_ceiling
 from replicate.world.env import start_patch
 from replicate.world.geometry import coverage_fraction_exact
 from replicate.world.osm import describe_source
-from replicate.world.regions import make_region, region_from_file
+from replicate.world.regions import at_density, make_region, region_from_file
 from replicate.world.units import BOB_SPEED
 
 

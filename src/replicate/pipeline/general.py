@@ -18,7 +18,7 @@ from pathlib import Path
 
 from replicate.compare.evaluate import evaluate_policy
 from replicate.compare.planner import planner_teacher, teacher_identity
-from replicate.compare.suite import SuiteCell, at_density, drift_heading, suite_cells, suite_event, suite_lake
+from replicate.compare.suite import SuiteCell, drift_heading, suite_cells, suite_event, suite_lake
 from replicate.core import artifacts
 from replicate.core.executor import map_jobs
 from replicate.core.params import load_params
@@ -26,6 +26,7 @@ from replicate.learn.general_train import train_recorded
 from replicate.learn.process import training_process
 from replicate.learn.runs import KEPT_POLICY, SEED_POLICY, finished_general, general_identity, seed_folder
 from replicate.toolkit.export import export_general
+from replicate.world.regions import at_density
 
 
 def _train_seed(job: dict) -> dict:

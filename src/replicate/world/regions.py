@@ -7,6 +7,7 @@ area (9 m² in the paper). A polygon read from a file goes through geopandas in 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import warnings
@@ -341,3 +342,9 @@ def read_run_region(run: Path) -> Region | None:
         raise RegionError(f"{run}: the run's region record is damaged ({exc}); pass --region") from None
     return None
 
+
+def at_density(region: Region, drawn_for: int, n_agents: int) -> Region:
+    """``region`` scaled for ``n_agents`` buoys at the density it was drawn for (the same N·A(Cov)/A(Reg))."""
+    s = (n_agents / drawn_for) ** 0.5
+    return dataclasses.replace(region, polygon=affinity.scale(region.polygon, s, s, origin=(0, 0)),
+                               scale=region.scale / s)
