@@ -261,3 +261,21 @@ def test_lloyd_move_pays_the_first_order_of_each_buoys_own_move(params, regions)
         centroid = points[cell[0] == i].mean(axis=0)
         direction = centroid - shaped.pos[0, i]
         np.testing.assert_allclose(pull[0, i] / np.linalg.norm(pull[0, i]), direction / np.linalg.norm(direction))
+
+
+def test_a_shared_pay_mixes_each_buoys_reward_with_its_neighbourhoods(params, regions):
+    """``Pay.shared`` = β pays (1 − β) r_i + β × the mean of r over buoy i and the buoys within ``reach``: the paper's
+    reward itself is unchanged, and over the buoys the pay's total is kept where every buoy hears every other."""
+    from replicate.world.rewards import neighbourhood_mean
+
+    plain, shared = paid_with_and_without(params, regions, Pay(0.01, shared=0.5, reach=2.0))
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        push = rng.uniform(-1, 1, (2, 4, 2))
+        a, b = plain.step(push), shared.step(push)
+        np.testing.assert_array_equal(a.reward, b.reward)
+        mean = neighbourhood_mean(a.reward, shared.pos, 2.0, None)
+        np.testing.assert_allclose(b.pay, 0.01 * (0.5 * a.reward + 0.5 * mean))
+    assert np.abs(b.pay - a.pay).max() > 0
+    everyone = neighbourhood_mean(a.reward, shared.pos, 100.0, None)
+    np.testing.assert_allclose(everyone.sum(-1), a.reward.sum(-1))

@@ -137,3 +137,15 @@ def test_lloyd_potential_pays_the_front_buoy_of_a_channel_for_going_on():
     beyond = pos.copy()
     beyond[:, 2, 0] = 8.0  # past its centroid: it is paid to come back
     assert (rewards.lloyd_potential(beyond, None, points, 0.5)[:, 2] < front[-1]).all()
+
+
+def test_neighbourhood_mean_is_over_each_buoy_and_those_it_hears_in_service():
+    """Three buoys on a line 1 m apart, reach 1.5 m: the ends hear the middle one, the middle one both; a buoy
+    alone keeps its own reward, and a lost buoy is nobody's neighbour."""
+    from replicate.world.rewards import neighbourhood_mean
+
+    pos = np.array([[[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]], [[0.0, 0.0], [1.0, 0.0], [5.0, 0.0]]])
+    reward = np.array([[3.0, 6.0, 9.0], [3.0, 6.0, 9.0]])
+    np.testing.assert_allclose(neighbourhood_mean(reward, pos, 1.5, None), [[4.5, 6.0, 7.5], [4.5, 4.5, 9.0]])
+    alive = np.array([[True, False, True], [True, True, True]])
+    np.testing.assert_allclose(neighbourhood_mean(reward, pos, 1.5, alive)[0], [3.0, 6.0, 9.0])

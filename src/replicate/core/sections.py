@@ -340,8 +340,10 @@ class GeneralConfig:
     # linear size, ``scenario.horizon``); False: episode_length steps in every world
     channel_fleet: Annotated[Int, In(0, MAX_AGENTS)] = 0  # N of one more world: the rectangle at the paper's density
     # (a long, crowded channel), its episodes of its evaluation's T; 0: none
-    OPTIONAL: ClassVar[tuple[str, ...]] = ("lloyd_shaping", "lloyd_move", "grown_horizon",
-                                           "channel_fleet")  # left out of a run's identity at their default
+    neighbour_credit: Share = 0.0  # β: each buoy paid (1 − β) its own reward + β the mean over itself and the buoys
+    # it hears (within sensors.comm_range); 0: its own alone
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("lloyd_shaping", "lloyd_move", "grown_horizon", "channel_fleet",
+                                           "neighbour_credit")  # left out of a run's identity at their default
 
     @model_validator(mode="after")
     def check(self):

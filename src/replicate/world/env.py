@@ -42,12 +42,16 @@ class Pay:
     for each buoy in service resting on the shore (a shore ray shorter than ``sensors.ON_SHORE``; it needs the
     local observation), plus ``lloyd`` × Φ_i(s') − Φ_i(s), what the step took off Lloyd's locational cost of each
     buoy's cell (``rewards.lloyd_potential``), plus ``lloyd_move`` × ∂Φ_i/∂p_i(s) · Δp_i, what the buoy's own move
-    took off the fleet's cost, to first order (``rewards.lloyd_pull``)."""
+    took off the fleet's cost, to first order (``rewards.lloyd_pull``). With ``shared`` = β the reward paid is
+    (1 − β) r_i + β × the mean of r over buoy i and the buoys within ``reach`` of it (``rewards.neighbourhood_mean``):
+    a buoy shares in what the buoys it hears are paid, so making room for them pays."""
 
     scale: float = 1.0
     shore_penalty: float = 0.0
     lloyd: float = 0.0
     lloyd_move: float = 0.0
+    shared: float = 0.0
+    reach: float = 0.0
 
 
 @dataclass
@@ -337,6 +341,9 @@ class CoverageEnv:
         when the pay adds nothing (an evaluation's environment, a scale of 1), with no array made each step."""
         if self.pay == Pay():
             return reward
+        if self.pay.shared:  # before the terms below, which are each buoy's own
+            mean = rewards.neighbourhood_mean(reward, self.pos, self.pay.reach, self.alive)
+            reward = (1.0 - self.pay.shared) * reward + self.pay.shared * mean
         pay = reward * self.pay.scale
         if self.pay.shore_penalty:
             live = np.ones((self.n_envs, self.n_agents), bool) if self.alive is None else self.alive

@@ -101,6 +101,17 @@ def lloyd_pull(pos: np.ndarray, alive: np.ndarray | None, points: np.ndarray, ra
     return 2.0 * (first - mass[..., None] * pos) / (len(points) * radius**2)
 
 
+def neighbourhood_mean(reward: np.ndarray, pos: np.ndarray, reach: float, alive: np.ndarray | None) -> np.ndarray:
+    """Each buoy's mean of ``reward`` [E, N] over itself and the other buoys in service within ``reach`` of it (the
+    buoys it hears) → [E, N]. A buoy alone keeps its own; a lost buoy (``alive`` False) is nobody's neighbour."""
+    d2 = ((pos[:, :, None, :] - pos[:, None, :, :]) ** 2).sum(-1)  # [E, N, N]
+    near = d2 <= reach * reach
+    if alive is not None:
+        near &= alive[:, None, :]
+    near |= np.eye(pos.shape[1], dtype=bool)
+    return (near * reward[:, None, :]).sum(-1) / near.sum(-1)
+
+
 def cr_reward(terms: CoverTerms, union_term: np.ndarray, cfg: CRRewardConfig, xy: np.ndarray) -> np.ndarray:
     """CR-MARL per-agent reward Overall_Reward(a) (SPEC §4): eq. (6) over eq. (5). → [E, N].
 

@@ -68,7 +68,14 @@ def general_env(params: Params, gc: GeneralConfig, region: Region, n_agents: int
                        cr=cr_weights(params.cr_reward, gc.cover_weight, gc.union_weight),
                        observation="local" if sensors else "position", sensors_config=gc.sensors, wall=True,
                        union_credit="difference", seed=seed,  # no pay without a reward: nothing learns there
-                       pay=Pay(gc.reward_scale, gc.shore_penalty, gc.lloyd_shaping, gc.lloyd_move) if reward else Pay())
+                       pay=general_pay(gc) if reward else Pay())
+
+
+def general_pay(gc: GeneralConfig) -> Pay:
+    """What a general policy in training is paid beside the reward (``Pay``): its scale, the shore penalty, the
+    Lloyd terms and the share of the neighbours' reward, those heard within the communication range."""
+    return Pay(gc.reward_scale, gc.shore_penalty, gc.lloyd_shaping, gc.lloyd_move, gc.neighbour_credit,
+               gc.sensors.comm_range)
 
 
 def general_evaluation_env(params: Params, region: Region, n_agents: int, n_envs: int, sensors,
