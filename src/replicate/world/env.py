@@ -42,15 +42,13 @@ class Pay:
     for each buoy in service resting on the shore (a shore ray shorter than ``sensors.ON_SHORE``; it needs the
     local observation), plus ``lloyd`` × Φ_i(s') − Φ_i(s), what the step took off Lloyd's locational cost of each
     buoy's cell (``rewards.lloyd_potential``), plus ``lloyd_move`` × ∂Φ_i/∂p_i(s) · Δp_i, what the buoy's own move
-    took off the fleet's cost, to first order (``rewards.lloyd_pull``). With ``shared`` = β the reward paid is
-    (1 − β) r_i + β × the mean of r over buoy i and the buoys within ``reach`` of it (``rewards.neighbourhood_mean``):
-    a buoy shares in what the buoys it hears are paid, so making room for them pays."""
+    took off the fleet's cost, to first order (``rewards.lloyd_pull``); shared with the buoys within ``reach``."""
 
     scale: float = 1.0
     shore_penalty: float = 0.0
     lloyd: float = 0.0
     lloyd_move: float = 0.0
-    shared: float = 0.0
+    shared: float = 0.0  # β of the neighbourhood's share (``rewards.neighbourhood_share``)
     reach: float = 0.0
 
 
@@ -342,8 +340,7 @@ class CoverageEnv:
         if self.pay == Pay():
             return reward
         if self.pay.shared:  # before the terms below, which are each buoy's own
-            mean = rewards.neighbourhood_mean(reward, self.pos, self.pay.reach, self.alive)
-            reward = (1.0 - self.pay.shared) * reward + self.pay.shared * mean
+            reward = rewards.neighbourhood_share(reward, self.pos, self.pay.reach, self.alive, self.pay.shared)
         pay = reward * self.pay.scale
         if self.pay.shore_penalty:
             live = np.ones((self.n_envs, self.n_agents), bool) if self.alive is None else self.alive

@@ -112,6 +112,13 @@ def neighbourhood_mean(reward: np.ndarray, pos: np.ndarray, reach: float, alive:
     return (near * reward[:, None, :]).sum(-1) / near.sum(-1)
 
 
+def neighbourhood_share(reward: np.ndarray, pos: np.ndarray, reach: float, alive: np.ndarray | None,
+                        share: float) -> np.ndarray:
+    """(1 − ``share``) × each buoy's own ``reward`` [E, N] + ``share`` × its ``neighbourhood_mean``: a buoy shares
+    in what the buoys it hears are paid, so making room for them pays. → [E, N]."""
+    return (1.0 - share) * reward + share * neighbourhood_mean(reward, pos, reach, alive)
+
+
 def cr_reward(terms: CoverTerms, union_term: np.ndarray, cfg: CRRewardConfig, xy: np.ndarray) -> np.ndarray:
     """CR-MARL per-agent reward Overall_Reward(a) (SPEC §4): eq. (6) over eq. (5). → [E, N].
 
