@@ -364,7 +364,7 @@ def test_channel_world_is_the_rectangle_at_the_papers_density_trained_for_its_ev
     trainer = GeneralTrainer(params, 4, tmp_path / "channel", progress=False, config=gc)
     square, lake, channel = trainer.worlds
     area = params.world.region_area
-    assert (channel.region.name, channel.n_agents) == ("rectangle", 20)
+    assert (channel.region.name, channel.n_agents) == ("channel", 20)
     assert channel.region.polygon.area == pytest.approx(20 / params.world.n_agents * area)
     minx, miny, maxx, maxy = channel.region.polygon.bounds
     assert (maxx - minx) / (maxy - miny) == pytest.approx(9.0)  # the rectangle's 9 × 1, scaled

@@ -148,4 +148,5 @@ def test_neighbourhood_mean_is_over_each_buoy_and_those_it_hears_in_service():
     reward = np.array([[3.0, 6.0, 9.0], [3.0, 6.0, 9.0]])
     np.testing.assert_allclose(neighbourhood_mean(reward, pos, 1.5, None), [[4.5, 6.0, 7.5], [4.5, 4.5, 9.0]])
     alive = np.array([[True, False, True], [True, True, True]])
-    np.testing.assert_allclose(neighbourhood_mean(reward, pos, 1.5, alive)[0], [3.0, 6.0, 9.0])
+    lost = np.array([[3.0, 0.0, 9.0], [3.0, 6.0, 9.0]])  # a lost buoy's reward is 0
+    np.testing.assert_allclose(neighbourhood_mean(lost, pos, 1.5, alive)[0], [3.0, 0.0, 9.0])

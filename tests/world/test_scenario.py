@@ -60,8 +60,7 @@ def test_the_scenario_sets_the_union_weight_and_pay_of_each_config(params, regio
     gc = params.general
     general = general_env(params, gc, regions["square"], 5, 1, 0)
     assert (general.cr.c1, general.cr.c2) == (gc.cover_weight, gc.union_weight)
-    assert general.pay == Pay(gc.reward_scale, gc.shore_penalty, gc.lloyd_shaping, gc.lloyd_move,
-                              gc.neighbour_credit, gc.sensors.comm_range) and general.wall
+    assert general.pay == Pay(gc.reward_scale, gc.shore_penalty, gc.lloyd_shaping, gc.lloyd_move) and general.wall
     assert general_env(params, gc, regions["square"], 5, 1, 0, reward=False).reward_kind is None
     assert cr_weights(params.cr_reward) == params.cr_reward
 

@@ -11,6 +11,7 @@ worlds the policy trains on.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,7 +59,8 @@ def channel_world(params: Params, gc: GeneralConfig) -> list[tuple[Region, int]]
     if not gc.channel_fleet:
         return []
     rectangle = make_region("rectangle", params.regions["rectangle"], params.world.region_area)
-    return [(at_density(rectangle, params.world.n_agents, gc.channel_fleet), gc.channel_fleet)]
+    channel = dataclasses.replace(at_density(rectangle, params.world.n_agents, gc.channel_fleet), name="channel")
+    return [(channel, gc.channel_fleet)]
 
 
 def make_worlds(params: Params, gc: GeneralConfig, rng: np.random.Generator, n_envs: int) -> list[World]:

@@ -42,7 +42,7 @@ class Pay:
     for each buoy in service resting on the shore (a shore ray shorter than ``sensors.ON_SHORE``; it needs the
     local observation), plus ``lloyd`` × Φ_i(s') − Φ_i(s), what the step took off Lloyd's locational cost of each
     buoy's cell (``rewards.lloyd_potential``), plus ``lloyd_move`` × ∂Φ_i/∂p_i(s) · Δp_i, what the buoy's own move
-    took off the fleet's cost, to first order (``rewards.lloyd_pull``); shared with the buoys within ``reach``."""
+    took off the fleet's cost, to first order (``rewards.lloyd_pull``); the reward first mixed over ``reach``."""
 
     scale: float = 1.0
     shore_penalty: float = 0.0

@@ -3,6 +3,7 @@
 A region is a shapely polygon in simulation metres, centred on its centroid and scaled uniformly to a target
 area (9 m² in the paper). A polygon read from a file goes through geopandas in its own CRS → UTM
 (``estimate_utm_crs``) → centred → scaled; the scale is kept so that results can be mapped back to the map.
+``at_density`` scales a region for another fleet at the density it was drawn for.
 """
 
 from __future__ import annotations

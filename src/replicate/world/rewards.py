@@ -103,11 +103,12 @@ def lloyd_pull(pos: np.ndarray, alive: np.ndarray | None, points: np.ndarray, ra
 
 def neighbourhood_mean(reward: np.ndarray, pos: np.ndarray, reach: float, alive: np.ndarray | None) -> np.ndarray:
     """Each buoy's mean of ``reward`` [E, N] over itself and the other buoys in service within ``reach`` of it (the
-    buoys it hears) → [E, N]. A buoy alone keeps its own; a lost buoy (``alive`` False) is nobody's neighbour."""
+    buoys it hears) → [E, N]. A buoy alone, or lost (``alive`` False), keeps its own; a lost one is nobody's
+    neighbour."""
     d2 = ((pos[:, :, None, :] - pos[:, None, :, :]) ** 2).sum(-1)  # [E, N, N]
     near = d2 <= reach * reach
     if alive is not None:
-        near &= alive[:, None, :]
+        near &= alive[:, None, :] & alive[:, :, None]
     near |= np.eye(pos.shape[1], dtype=bool)
     return (near * reward[:, None, :]).sum(-1) / near.sum(-1)
 

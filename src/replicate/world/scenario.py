@@ -75,7 +75,7 @@ def general_pay(gc: GeneralConfig) -> Pay:
     """What a general policy in training is paid beside the reward (``Pay``): its scale, the shore penalty, the
     Lloyd terms and the share of the neighbours' reward, those heard within the communication range."""
     return Pay(gc.reward_scale, gc.shore_penalty, gc.lloyd_shaping, gc.lloyd_move, gc.neighbour_credit,
-               gc.sensors.comm_range)
+               gc.sensors.comm_range if gc.neighbour_credit else 0.0)
 
 
 def general_evaluation_env(params: Params, region: Region, n_agents: int, n_envs: int, sensors,
