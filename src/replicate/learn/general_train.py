@@ -96,8 +96,7 @@ class GeneralTrainer:
         patch, every world scattered; 4 episodes each."""
         out = []
         for w in self.worlds:
-            env = general_env(self.params, self.gc, w.region, w.n_agents, 4, 0, reward=False,
-                              grown=w.steps != self.gc.episode_length)
+            env = general_env(self.params, self.gc, w.region, w.n_agents, 4, 0, reward=False, steps=w.steps)
             starts = ("corner", "random") if w.region.name in self.corner_validation else ("random",)
             out += [(World(w.region, w.n_agents, env), s, int(rng.integers(2**31))) for s in starts]
         return out

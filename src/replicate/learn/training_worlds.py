@@ -21,7 +21,7 @@ from replicate.core.sections import GeneralConfig
 from replicate.world.env import CoverageEnv
 from replicate.world.lakes import lake_region, training
 from replicate.world.regions import Region, at_density, make_region
-from replicate.world.scenario import coverage_area, general_env
+from replicate.world.scenario import coverage_area, general_env, horizon
 
 
 @dataclass
@@ -69,9 +69,9 @@ def make_worlds(params: Params, gc: GeneralConfig, rng: np.random.Generator, n_e
     worlds = []
     for name in gc.regions:
         region = make_region(name, params.regions[name], params.world.region_area)
-        worlds.append((region, int(rng.choice(gc.fleet)), False))
-    worlds += [(region, n, False) for region, n in training_lakes(params, gc)]
-    worlds += [(region, n, True) for region, n in channel_world(params, gc)]
+        worlds.append((region, int(rng.choice(gc.fleet)), None))
+    worlds += [(region, n, None) for region, n in training_lakes(params, gc)]
+    worlds += [(region, n, horizon(gc, region, params.world.region_area)) for region, n in channel_world(params, gc)]
     return [World(region, n, general_env(params, gc, region, n, n_envs,
-                                         np.random.SeedSequence(int(rng.integers(2**31))), grown=grown))
-            for region, n, grown in worlds]
+                                         np.random.SeedSequence(int(rng.integers(2**31))), steps=steps))
+            for region, n, steps in worlds]

@@ -57,12 +57,13 @@ def evaluation_env(region: Region, rc: RunConfig, n_envs: int, observation: str 
 
 
 def general_env(params: Params, gc: GeneralConfig, region: Region, n_agents: int, n_envs: int, seed,
-                reward: bool = True, sensors: bool = True, grown: bool = False) -> CoverageEnv:
+                reward: bool = True, sensors: bool = True, steps: int | None = None) -> CoverageEnv:
     """E environments of one general world. ``reward``: CR's reward and the general training's pay (a policy
     being trained); ``sensors``: the local observation (a policy acting; the baselines read positions, and skip the
-    shore rays each step). Its episodes last ``gc.episode_length`` steps, or with ``gc.grown_horizon`` or ``grown``
-    the region's ``horizon``."""
-    steps = horizon(gc, region, params.world.region_area) if gc.grown_horizon or grown else gc.episode_length
+    shore rays each step). Its episodes last ``steps``, by default ``gc.episode_length`` or, with
+    ``gc.grown_horizon``, the region's ``horizon``."""
+    if steps is None:
+        steps = horizon(gc, region, params.world.region_area) if gc.grown_horizon else gc.episode_length
     world = dataclasses.replace(region_world(params, None), n_agents=n_agents, episode_length=steps)
     return CoverageEnv(region, world, params.coverage, n_envs=n_envs, reward="cr" if reward else None,
                        cr=cr_weights(params.cr_reward, gc.cover_weight, gc.union_weight),
@@ -85,7 +86,7 @@ def general_evaluation_env(params: Params, region: Region, n_agents: int, n_envs
     ``sensors`` (a ``SensorsConfig``, the policy's), or nothing for the baselines (None)."""
     config = dataclasses.replace(params.general, sensors=sensors or params.general.sensors)
     env = general_env(params, config, region, n_agents, n_envs, 0, reward=False, sensors=sensors is not None,
-                      grown=True)
+                      steps=horizon(config, region, params.world.region_area))
     steps = env.world.episode_length
     if current is not None:
         env.set_current((current if isinstance(current, Current) else Current.uniform(current)).tiled(n_envs))
