@@ -27,13 +27,14 @@
    minibatch shaped as its training samples it, against its matmul floor and against the same update with its two
    losses compiled by ``torch.compile`` (inductor), and where its time goes; then a general seed's projected CPU
    (batches timed across its training worlds, scaled to ``general.episodes``) with the actor as trained and with
-   the averaged compass actor (``symmetry: d4``, its value before ``d4_frame``), against the 450 s target.
+   the averaged compass actor (``symmetry: d4``, its value before ``d4_frame``), against its target.
 7. What a field team waits for (``benchmarks/field_bench.py``): `replicate --help`'s start-up, `act --stream`'s
    latency per step, `replicate plan` on a real lake, and `replicate evaluate --policy` on each real lake (wall
-   time and peak memory against 30 s and 1 GB).
+   time and peak memory against their targets).
 8. The pipeline from scratch, stage by stage: ``train`` as section 1 projects it, the general seeds' stages from
    section 6's seed, the others as the last measured forced ``dvc repro`` (``benchmarks/from_scratch.json``), in
-   all and with 8 reported general seeds, against 150 minutes.
+   all and with 8 reported general seeds, against its target.
+Every target is read from ``params.yaml`` (``bench``; ``tuned``'s run from ``report.target_seconds``).
 
 ``--quick`` (``make bench ARGS=--quick``) prints every figure but section 4's from shorter timings (600 episodes,
 fewer batches), within 15 minutes on two cores; the run's own duration is its last line.
@@ -499,10 +500,11 @@ def general_seed_section(params, batches: int) -> dict[str, float]:
     ``d4`` (8 copies of the network; the training's ``d4_frame`` runs it once) → {symmetry: s}."""
     symmetry = params.general.learner.symmetry
     seconds = {s: general_seed_cpu(params, s, batches) for s in dict.fromkeys((symmetry, "d4"))}
+    target = params.bench.general_seed_s
     for s, cpu in seconds.items():
         print(f"a general seed ({params.general.episodes:,} episodes, symmetry {s}): projected {cpu:.0f} s of one "
               f"core, alone ({batches} batches timed across the training worlds; two seeds side by side run slower, "
-              f"as section 1's runs; target <= 450 s: {cpu / 450:.2f}x)"
+              f"as section 1's runs; target <= {target:.0f} s: {cpu / target:.2f}x)"
               + (f"; {cpu / seconds[symmetry]:.2f}x the {symmetry} actor's" if s != symmetry else ""))
     return seconds
 
@@ -511,7 +513,7 @@ def training_section(params, square, floors: dict[str, float], episodes: int) ->
     print("== 1. training time per run, square (one thread): a run alone, and a cell's seeds stacked in one process "
           "with a second such process beside it, as the pipeline's `train` stage runs them ==")
     splits = {}
-    for config, target in (("paper", 90), ("tuned", 180)):
+    for config, target in (("paper", params.bench.paper_run_s), ("tuned", params.report.target_seconds)):
         seeds = len(cell_seeds(params, config))
         for method in ("cr", "sw"):
             alone = training_split(params, square, config, method, episodes)
@@ -521,7 +523,7 @@ def training_section(params, square, floors: dict[str, float], episodes: int) ->
             for label, (env_s, per_update, upd_1000, full) in (("alone", alone), (f"{seeds} stacked x2", stacked)):
                 print(f"{config} {method.upper()}-MARL, {label:12s}: per 1,000 episodes: environment+geometry+acting "
                       f"{env_s:6.1f} s, updates {upd_1000:6.1f} s ({per_update * 1e3:.1f} ms per update of 9 "
-                      f"agents); projected 10,000-episode run {full:6.1f} s (target {target} s); the matmul floor "
+                      f"agents); projected 10,000-episode run {full:6.1f} s (target {target:.0f} s); the matmul floor "
                       f"is {floors[config] / per_update:.0%} of an update's time")
             print(f"{config} {method.upper()}-MARL: {seeds} seeds stacked, two processes side by side, take "
                   f"{stacked[3] / alone[3]:.2f}x the time per run of a run alone")
@@ -559,9 +561,10 @@ def pipeline_section(params, train_s: float | None, seed_cpu: float | None, work
     if seed_cpu is not None and len(params.general.seeds) < 8:  # the evaluation asks 8 reported seeds
         extra = (math.ceil(8 / workers) - math.ceil(len(params.general.seeds) / workers)) * seed_cpu
         extra += stages.get("evaluate_general", 0.0) * (8 / len(params.general.seeds) - 1)
+    target = params.bench.from_scratch_min
     print(f"whole forced `dvc repro`: {total / 60:.0f} min; with 8 reported general seeds (their training, and the "
-          f"suite's evaluation scaled by seeds) {(total + extra) / 60:.0f} min; target <= 150 min "
-          f"({(total + extra) / 9000:.2f}x)")
+          f"suite's evaluation scaled by seeds) {(total + extra) / 60:.0f} min; target <= {target:.0f} min "
+          f"({(total + extra) / 60 / target:.2f}x)")
 
 
 def update_section(params) -> None:
@@ -683,7 +686,7 @@ def main(argv=None) -> int:
         general_update_section(params, floors)
         seed_cpu = general_seed_section(params, 4 if args.quick else 12)[params.general.learner.symmetry]
     if 7 in only:
-        field_bench.field_section()
+        field_bench.field_section(params.bench)
     if 8 in only:
         pipeline_section(params, train_s, seed_cpu)
     if args.full:

@@ -29,7 +29,7 @@ from replicate.core.sections import (
     WorldConfig,
     YardstickConfig,
 )
-from replicate.core.studies import AblationConfig, EvaluateConfig, ReportConfig, TuningConfig
+from replicate.core.studies import AblationConfig, BenchTargets, EvaluateConfig, ReportConfig, TuningConfig
 
 DEFAULT_PARAMS = Path("params.yaml")
 
@@ -62,6 +62,7 @@ class Params:
     report: ReportConfig
     general: GeneralConfig
     yardstick: YardstickConfig
+    bench: BenchTargets
     stages: dict[str, Any] = field(default_factory=dict)
 
     @model_validator(mode="after")

@@ -214,6 +214,19 @@ class ReportConfig:
 
 
 @section
+class BenchTargets:
+    """The speed targets ``make bench`` prints each figure against (benchmarks, never timed tests)."""
+
+    paper_run_s: Positive  # one core's seconds per 10,000-episode ``paper`` run (``tuned``: report.target_seconds)
+    general_seed_s: Positive  # one core's seconds per general seed (general.episodes)
+    from_scratch_min: Positive  # a forced ``dvc repro`` on two cores with 8 reported general seeds
+    lake_evaluate_s: Positive  # wall seconds of ``evaluate --policy`` on a real lake, on two cores
+    large_lake_evaluate_s: Positive  # ... on a generated 4,000-vertex lake with arms and islands
+    peak_mb: Positive  # peak memory of a field command
+    act_step_ms: Positive  # ``act --stream``: milliseconds per step, one core
+
+
+@section
 class AblationConfig:
     """Leave-one-out ablation of ``base``: for each change, a config equal to ``base`` except that the change's
     keys (dotted, inside a config) take ``reference``'s values. Named ``{base}-without-{change}``."""
