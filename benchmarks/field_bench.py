@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from replicate.core.studies import BenchTargets
+
 ROOT = Path(__file__).resolve().parents[1]
 REPLICATE = [str(Path(sys.executable).parent / "replicate")]  # the installed command, as a user runs it
 
@@ -109,7 +111,7 @@ def evaluate_seconds(lake: str, out: Path) -> tuple[float, float]:
     return timed(["evaluate", "--policy", "src/replicate/defaults/general.pt", "--region", lake, "--out", str(out)])
 
 
-def field_section(targets) -> None:
+def field_section(targets: BenchTargets) -> None:
     """Section 7, each figure against its target in ``targets`` (``params.bench``)."""
     print("== 7. what a field team waits for ==")
     print(f"`replicate --help` start-up: {help_startup():.2f} s (best of 5 fresh processes)")
