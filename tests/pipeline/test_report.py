@@ -277,16 +277,19 @@ def test_a_lake_and_fleet_has_one_best_layout_whatever_the_cell():
 
 def test_the_report_lists_each_compared_change_with_its_verdict():
     """``tried_section``: one row per ``replicate compare`` record, its gain with the interval over seeds, the
-    probability of improvement and whether the rule kept it; nothing without records."""
+    probability of improvement, the rule's bar (a change for speed may lose a little) and whether the rule kept it;
+    nothing without records."""
     from replicate.pipeline.report.general import tried_section
 
-    def record(delta, keep):
+    def record(delta, keep, min_gain=0.0):
         return {"verdict": {"difference": {"delta": delta, "lo": delta - 0.01, "hi": delta + 0.01}, "keep": keep,
-                            "probability_of_improvement": {"p": 0.5}},
+                            "probability_of_improvement": {"p": 0.5}, "min_gain": min_gain},
                 "scores": {**{f"baseline/{s}": 1.0 for s in range(8)}, **{f"candidate/{s}": 1.0 for s in range(8)}}}
 
-    lines = tried_section({"wider": record(0.02, "candidate"), "deeper": record(-0.003, "baseline")})
-    rows = [line for line in lines if line.startswith("| deeper") or line.startswith("| wider")]
-    assert rows == ["| deeper | 8 | -0.0030 [-0.0130, +0.0070] | 0.50 | no |",
-                    "| wider | 8 | +0.0200 [+0.0100, +0.0300] | 0.50 | yes |"]
+    lines = tried_section({"wider": record(0.02, "candidate"), "deeper": record(-0.003, "baseline"),
+                           "faster": record(0.005, "candidate", -0.005)})
+    rows = [line for line in lines if line.startswith(("| deeper", "| faster", "| wider"))]
+    assert rows == ["| deeper | 8 | -0.0030 [-0.0130, +0.0070] | 0.50 | +0.000 | no |",
+                    "| faster | 8 | +0.0050 [-0.0050, +0.0150] | 0.50 | -0.005 | yes |",
+                    "| wider | 8 | +0.0200 [+0.0100, +0.0300] | 0.50 | +0.000 | yes |"]
     assert tried_section({}) == []

@@ -290,7 +290,8 @@ def share_table(params, cells: list[dict]) -> list[str]:
 
 def tried_section(records: dict[str, dict]) -> list[str]:
     """The changes of the general training measured on the yardstick (``replicate compare`` records, by name),
-    each with its gain over the standing baseline and the rule's verdict."""
+    each with its gain over the standing baseline, the rule's bar (0, or a loss a change made for speed may cost)
+    and its verdict."""
     if not records:
         return []
     lines = ["Changes of the general training measured on the yardstick lakes (`replicate compare`: tuning seeds, "
@@ -298,12 +299,14 @@ def tried_section(records: dict[str, dict]) -> list[str]:
              "`docs/comparisons/`, the reading in `docs/GENERAL.md`; a candidate whose first seeds collapsed is "
              "there, with no record):", "",
              "| change (record) | seeds a side | Δ coverage / lloyd_tuned [95 % interval over seeds] | "
-             "P(a candidate seed beats a baseline seed) | kept |", "|---|---|---|---|---|"]
+             "P(a candidate seed beats a baseline seed) | kept iff the interval lies above | kept |",
+             "|---|---|---|---|---|---|"]
     for name, r in sorted(records.items()):
         d, v = r["verdict"]["difference"], r["verdict"]
         seeds = sum(k.startswith("candidate/") for k in r["scores"])
         lines.append(f"| {name} | {seeds} | {d['delta']:+.4f} [{d['lo']:+.4f}, {d['hi']:+.4f}] | "
-                     f"{v['probability_of_improvement']['p']:.2f} | {'yes' if v['keep'] == 'candidate' else 'no'} |")
+                     f"{v['probability_of_improvement']['p']:.2f} | {v['min_gain']:+.3f} | "
+                     f"{'yes' if v['keep'] == 'candidate' else 'no'} |")
     return [*lines, ""]
 
 
