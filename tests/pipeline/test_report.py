@@ -287,9 +287,9 @@ def test_the_report_lists_each_compared_change_with_its_verdict():
                 "scores": {**{f"baseline/{s}": 1.0 for s in range(8)}, **{f"candidate/{s}": 1.0 for s in range(8)}}}
 
     lines = tried_section({"wider": record(0.02, "candidate"), "deeper": record(-0.003, "baseline"),
-                           "faster": record(0.005, "candidate", -0.005)})
+                           "faster": record(0.01, "candidate", -0.005)})
     rows = [line for line in lines if line.startswith(("| deeper", "| faster", "| wider"))]
     assert rows == ["| deeper | 8 | -0.0030 [-0.0130, +0.0070] | 0.50 | +0.000 | no |",
-                    "| faster | 8 | +0.0050 [-0.0050, +0.0150] | 0.50 | -0.005 | yes |",
+                    "| faster | 8 | +0.0100 [+0.0000, +0.0200] | 0.50 | -0.005 | yes |",
                     "| wider | 8 | +0.0200 [+0.0100, +0.0300] | 0.50 | +0.000 | yes |"]
     assert tried_section({}) == []

@@ -1,5 +1,6 @@
 """The sections of ``params.yaml`` that say how results are read: the evaluation and its baselines, the searches
-(Optuna studies and the record of the hand search), the report's verdict rules and the ablation.
+(Optuna studies and the record of the hand search), the report's verdict rules, the ablation and the speed targets
+``make bench`` prints its figures against.
 
 Each value's type and range stand beside it (``schema``).
 """

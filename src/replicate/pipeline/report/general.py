@@ -296,10 +296,10 @@ def tried_section(records: dict[str, dict]) -> list[str]:
         return []
     lines = ["Changes of the general training measured on the yardstick lakes (`replicate compare`: tuning seeds, "
              "the seed as the unit, the rule written before the seeds trained; the records in "
-             "`docs/comparisons/`, the reading in `docs/GENERAL.md`; a candidate whose first seeds collapsed is "
-             "there, with no record):", "",
+             "`docs/comparisons/`, the reading in `docs/GENERAL.md`, which says whether `params.yaml` adopted it; "
+             "a candidate whose first seeds collapsed is there, with no record):", "",
              "| change (record) | seeds a side | Δ coverage / lloyd_tuned [95 % interval over seeds] | "
-             "P(a candidate seed beats a baseline seed) | kept iff the interval lies above | kept |",
+             "P(a candidate seed beats a baseline seed) | passes iff the interval lies above | passes |",
              "|---|---|---|---|---|---|"]
     for name, r in sorted(records.items()):
         d, v = r["verdict"]["difference"], r["verdict"]
