@@ -5,9 +5,10 @@
    copies, optimiser), so run times measured on different machines and the room left for speed-ups can be read.
 1. Time per 1,000 episodes of the paper and tuned configurations (CR-MARL and SW-MARL, square), split into
    environment + geometry + acting (+ validation) and MADDPG updates, and the projected wall time of a full
-   10,000-episode run (the budget `tuned` was designed for: ``report.target_seconds`` of one core): for a run alone, and per run of a
-   cell's seeds stacked in one process with a second such process beside it, as the pipeline's `train` stage
-   runs them (two processes share the caches and the memory bus: each runs slower than alone), with the ratio.
+   10,000-episode run (the budget `tuned` was designed for: ``report.target_seconds`` of one core): for a run
+   alone, and per run of a cell's seeds stacked in one process with a second such process beside it, as the
+   pipeline's `train` stage runs them (two processes share the caches and the memory bus: each runs slower than
+   alone), with the ratio.
    From the side-by-side figures, the projected `train` stage (every run of params.yaml's matrix and ablation)
    and the same with every update at its matmul floor; section 8 adds the other stages.
 2. One update of all 9 agents, per configuration: the training's update (``MADDPG.update``, autograd over the
