@@ -280,3 +280,25 @@ def test_imitation_before_hands_over_to_the_actor_critic():
         alone.update(b)
     torch.testing.assert_close(before.actor(b.obs)[0], other.actor(b.obs)[0])
     assert not torch.allclose(before.actor(b.obs)[0], alone.actor(b.obs)[0])
+
+
+def test_the_averaged_actor_follows_the_trained_one_at_its_rate_and_is_the_one_deployed():
+    """``average``: θ̄ ← θ̄ + average·(θ − θ̄) after every update; the policy (what is validated and deployed) is
+    θ̄'s, the behaviour (``act``) the trained actor's; the updates themselves are the same as without it."""
+    import dataclasses
+
+    b = fleet(6, batch=32, seed=4)
+    cfg = SharedLearnerConfig(hidden=32, embed=16, actor_lr=3e-3)
+    plain, averaged = (SharedMADDPG(OD, AD, dataclasses.replace(cfg, average=a), seed=0) for a in (0.0, 0.1))
+    assert plain.actor_average is None and plain.deployed is plain.actor
+    expected = [p.detach().clone() for p in averaged.actor.parameters()]
+    for _ in range(5):
+        assert plain.update(b) == averaged.update(b)
+        for e, p in zip(expected, averaged.actor.parameters()):
+            e += 0.1 * (p.detach() - e)
+    for e, p in zip(expected, averaged.actor_average.parameters()):
+        torch.testing.assert_close(p, e)
+    torch.testing.assert_close(averaged.policy(b.obs, None, None), averaged.actor_average(b.obs)[0])
+    assert not torch.allclose(averaged.policy(b.obs, None, None), averaged.actor(b.obs)[0])
+    noiseless = averaged.act(b.obs, 0.0, torch.Generator().manual_seed(0))
+    torch.testing.assert_close(noiseless, averaged.actor(b.obs)[0].clamp(-1, 1))

@@ -225,8 +225,10 @@ class SharedLearnerConfig:
     # teacher labels no more
     hops: Annotated[Int, In(0, 3)] = 0  # rounds of messages between the buoys that hear each other
     # (``learn.messages``); 0: the actor reads its own sensors only
+    average: Annotated[Num, In(0, 1, open_hi=True)] = 0.0  # the validated and deployed actor: a running average of
+    # the trained actor's weights, θ̄ ← θ̄ + average·(θ − θ̄) at every update (Polyak averaging); 0: the trained actor
     OPTIONAL: ClassVar[tuple[str, ...]] = ("symmetry", "imitation", "imitation_weight", "imitation_until",
-                                           "hops")  # left out of a run's identity at their default (as sensors')
+                                           "hops", "average")  # left out of a run's identity at their default
 
     @model_validator(mode="after")
     def check(self):

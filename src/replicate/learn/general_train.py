@@ -15,7 +15,8 @@ term or alone (DAgger's relabelling of the learner's own states, Ross et al. 201
 no more.
 
 The run keeps the actor that covered best on its validation starts (every named region and the channel from the
-corner, each world scattered, fixed seeds drawn from the run's seed) and writes into its folder: ``actor.pt``
+corner, each world scattered, fixed seeds drawn from the run's seed; with ``general.learner.average``, the running
+average of the trained actor's weights is the one validated) and writes into its folder: ``actor.pt``
 (weights and the sensors it reads), ``curve.csv.gz`` (one row per batch), ``run.json``.
 """
 
@@ -84,8 +85,7 @@ class GeneralTrainer:
         self.agent = SharedMADDPG(obs_dim, 2, self.gc.learner, seed=seed, columns=columns, sensors=self.gc.sensors)
         self.initial_actor = actor
         if actor is not None:
-            self.agent.actor.load_state_dict(actor)
-            self.agent.actor_target.load_state_dict(actor)
+            self.agent.load_actor(actor)
         memory = Replay(self.gc.buffer_size, max(w.n_agents for w in self.worlds), obs_dim, fleets=True,
                         expert=imitating)
         self.loop = TrainingLoop(self.agent, self.gc, [memory], [np.random.default_rng(streams[3])], stacked=False)
@@ -179,8 +179,8 @@ class GeneralTrainer:
                 obs = env.step(self.agent.policy(obs, env.pos, env.alive).numpy()).obs
             scores.append(float(env.coverage_fraction().mean()))
         score = float(np.mean(scores))
-        self.loop.keep(0, score, episodes, lambda: {k: v.clone() for k, v in self.agent.actor.state_dict().items()},
-                       ties="earlier")
+        self.loop.keep(0, score, episodes,
+                       lambda: {k: v.clone() for k, v in self.agent.deployed.state_dict().items()}, ties="earlier")
         return score
 
     def finish(self, wall: float, cpu: float) -> dict:

@@ -173,6 +173,7 @@ class SharedMADDPG:
             self.critic = PooledCritic(obs_dim, act_dim, cfg.hidden, cfg.embed, cfg.pool_range,
                                        cfg.pool_neighbours)
         self.actor_target, self.critic_target = copy.deepcopy(self.actor), copy.deepcopy(self.critic)
+        self.actor_average = copy.deepcopy(self.actor) if cfg.average else None  # what is validated and deployed
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
         self.imitation = "alone" if cfg.imitation == "before" else cfg.imitation  # what the actor's loss is now
@@ -220,10 +221,13 @@ class SharedMADDPG:
         nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.grad_clip)
         self.actor_opt.step()
 
-        with torch.no_grad():  # θ' ← τθ + (1 − τ)θ'
-            for net, target in ((critic, self.critic_target), (self.actor, self.actor_target)):
-                for p, tp in zip(net.parameters(), target.parameters()):
-                    tp.lerp_(p, cfg.tau)
+        with torch.no_grad():  # θ' ← τθ + (1 − τ)θ'; with ``average``, θ̄ ← θ̄ + average·(θ − θ̄)
+            followers = [(critic, self.critic_target, cfg.tau), (self.actor, self.actor_target, cfg.tau)]
+            if self.actor_average is not None:
+                followers.append((self.actor, self.actor_average, cfg.average))
+            for net, follower, rate in followers:
+                for p, tp in zip(net.parameters(), follower.parameters()):
+                    tp.lerp_(p, rate)
         return {"critic_loss": critic_loss.item(), "q_abs": q.detach().abs().mean().item()}
 
     def scale_learning_rates(self, factor: float) -> None:
@@ -231,20 +235,34 @@ class SharedMADDPG:
         self.actor_opt.param_groups[0]["lr"] = factor * self.cfg.actor_lr
         self.critic_opt.param_groups[0]["lr"] = factor * self.cfg.critic_lr
 
+    @property
+    def deployed(self) -> SharedActor:
+        """The actor that is validated and deployed: the running average of the trained one with ``average``, else
+        the trained one."""
+        return self.actor if self.actor_average is None else self.actor_average
+
+    def load_actor(self, state: dict) -> None:
+        """Start every actor (the trained one, its target and its average) from the weights ``state``."""
+        for actor in (self.actor, self.actor_target, self.actor_average):
+            if actor is not None:
+                actor.load_state_dict(state)
+
     @torch.no_grad()
-    def policy(self, obs, pos, live) -> torch.Tensor:
-        """The deterministic actions μ [E, N, act_dim] of fleets: obs [E, N, obs_dim], pos [E, N, 2], live [E, N]
-        (None: every buoy in service; only an actor with messages reads pos and live)."""
+    def policy(self, obs, pos, live, actor: SharedActor | None = None) -> torch.Tensor:
+        """The deterministic actions [E, N, act_dim] of fleets of ``actor`` (default: the deployed one): obs [E, N,
+        obs_dim], pos [E, N, 2], live [E, N] (None: every buoy in service; only an actor with messages reads pos
+        and live)."""
+        actor = self.deployed if actor is None else actor
         obs = torch.as_tensor(obs, dtype=torch.float32)
-        if not self.actor.hops:
-            return self.actor(obs)[0]
+        if not actor.hops:
+            return actor(obs)[0]
         live = torch.ones(obs.shape[:2], dtype=torch.bool) if live is None else torch.as_tensor(live)
-        return self.actor.fleet(obs, torch.as_tensor(pos, dtype=torch.float32), live)[0]
+        return actor.fleet(obs, torch.as_tensor(pos, dtype=torch.float32), live)[0]
 
     @torch.no_grad()
     def act(self, obs, sigma: float, generator: torch.Generator, pos=None, live=None) -> torch.Tensor:
-        """Behaviour actions for obs [E, N, obs_dim] (pos and live as ``policy``): μ plus Gaussian noise σ,
-        clipped to [−1, 1]."""
-        mu = self.policy(obs, pos, live)
+        """Behaviour actions for obs [E, N, obs_dim] (pos and live as ``policy``): the trained μ plus Gaussian
+        noise σ, clipped to [−1, 1]."""
+        mu = self.policy(obs, pos, live, self.actor)
         noise = torch.randn(mu.shape, generator=generator) * sigma
         return (mu + noise).clamp(-1.0, 1.0)
