@@ -60,6 +60,25 @@ def test_same_seed_same_run(two_runs):
     assert a["selected_validation_coverage"] == b["selected_validation_coverage"]
 
 
+def test_an_averaged_actor_starts_from_the_given_weights_and_is_the_one_validated_and_kept(params, tmp_path):
+    """``general.learner.average``: starting weights go to the trained actor, its target and its average alike; the
+    validation scores and keeps the average's weights, not the trained actor's."""
+    cfg = tiny(params)
+    cfg = dataclasses.replace(cfg, learner=dataclasses.replace(cfg.learner, average=0.1))
+    start = GeneralTrainer(params, 5, tmp_path / "a", progress=False, config=tiny(params)).agent.actor.state_dict()
+    trainer = GeneralTrainer(params, 6, tmp_path / "b", progress=False, config=cfg, actor=start)
+    agent = trainer.agent
+    for net in (agent.actor, agent.actor_target, agent.actor_average):
+        assert all(torch.equal(net.state_dict()[k], v) for k, v in start.items())
+    with torch.no_grad():
+        for p in agent.actor_average.parameters():
+            p.mul_(0.5)  # the average and the trained actor now differ
+    trainer.validate(0)
+    kept = trainer.loop.kept[0]["actor"]
+    assert all(torch.equal(kept[k], v) for k, v in agent.actor_average.state_dict().items())
+    assert not all(torch.equal(kept[k], v) for k, v in agent.actor.state_dict().items())
+
+
 def test_a_buoy_the_wall_stopped_is_on_the_shore(params, regions):
     """Buoys driven into the shore at full thrust rest on it (the wall stops them a hair inside the water: their
     shortest ray is above 0): ``on_shore`` finds every one of them, and none of the buoys left mid-lake."""
