@@ -1,6 +1,8 @@
 """The fleet-size-agnostic MADDPG (``replicate.learn.shared_maddpg``): one actor and one critic for any N, any order,
 padding and lost buoys left out."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -285,8 +287,6 @@ def test_imitation_before_hands_over_to_the_actor_critic():
 def test_the_averaged_actor_follows_the_trained_one_at_its_rate_and_is_the_one_deployed():
     """``average``: θ̄ ← θ̄ + average·(θ − θ̄) after every update; the policy (what is validated and deployed) is
     θ̄'s, the behaviour (``act``) the trained actor's; the updates themselves are the same as without it."""
-    import dataclasses
-
     b = fleet(6, batch=32, seed=4)
     cfg = SharedLearnerConfig(hidden=32, embed=16, actor_lr=3e-3)
     plain, averaged = (SharedMADDPG(OD, AD, dataclasses.replace(cfg, average=a), seed=0) for a in (0.0, 0.1))
