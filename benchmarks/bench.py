@@ -476,15 +476,17 @@ def general_update_section(params, floors: dict[str, float]) -> None:
 
 def general_seed_cpu(params, symmetry: str, batches: int) -> float:
     """Projected CPU seconds of one general seed (``general.episodes``) with the actor's ``symmetry``: the trainer's
-    set-up, ``batches`` batches after the first (which fills the replay to ``learning_starts``), spread over the
-    training worlds, and one validation, each in process CPU, scaled to the seed's batches and validations."""
+    set-up, ``batches`` batches after those that fill the replay to ``learning_starts`` (so that every timed batch
+    makes its updates), spread over the training worlds, and one validation, each in process CPU, scaled to the
+    seed's batches and validations."""
     gc = dataclasses.replace(params.general, learner=dataclasses.replace(params.general.learner, symmetry=symmetry))
     with tempfile.TemporaryDirectory() as tmp:
         start = time.process_time()
         trainer = GeneralTrainer(params, 0, Path(tmp) / "g", False, gc)
         setup = time.process_time() - start
         worlds = trainer.worlds
-        trainer.play(worlds[0], gc.noise_start)
+        while trainer.loop.memories[0].size < gc.learning_starts:
+            trainer.play(worlds[0], gc.noise_start)
         start = time.process_time()
         for b in range(batches):
             trainer.play(worlds[(1 + b * len(worlds) // batches) % len(worlds)], gc.noise_start)
