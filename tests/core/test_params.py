@@ -58,6 +58,7 @@ def write(tmp_path, mutate):
         (lambda r: r["ablation"]["changes"].update(typo=["maddpg.gama"]), "ablation.changes.typo: unknown key"),
         (lambda r: r["ablation"].update(base="best"), "ablation: unknown config 'best'"),
         (lambda r: r["ablation"].update(regions=["atlantis"]), "unknown region"),
+        (lambda r: r["report"]["goals"].update(channel="atlantis"), "report.goals.channel: unknown region 'atlantis'"),
         (lambda r: r["regions"]["square"].update(episode_length=0), "regions.square.episode_length must be at least 1"),
         (lambda r: r["general"]["suite"].update(events=["lose"]), r"general.suite.events: 'none' \(still water, which"),
         (lambda r: r["general"]["suite"].update(events=["none", "storm"]), "general.suite.events: 'none'"),

@@ -90,6 +90,9 @@ class Params:
                               f"radius), got {self.evaluate.geodesic.spacing}")
         if unknown := sorted(set(self.general.regions) - set(self.regions)):
             raise ConfigError(f"general.regions: unknown region(s) {unknown}; known: {sorted(self.regions)}")
+        if self.report.goals.channel not in self.regions:
+            raise ConfigError(f"report.goals.channel: unknown region {self.report.goals.channel!r}; known: "
+                              f"{sorted(self.regions)}")
         if reported := sorted(set(self.yardstick.seeds) & set(self.general.seeds)):
             raise ConfigError(f"yardstick.seeds: {reported} also in general.seeds; the standing baseline's seeds are "
                               "never the reported ones, choose others")

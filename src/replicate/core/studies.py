@@ -16,6 +16,7 @@ from replicate.core.schema import (
     ConfigError,
     Count,
     Flag,
+    Fleet,
     In,
     NonNegative,
     Num,
@@ -192,6 +193,22 @@ class GeneralTargets:
 
 
 @section
+class GeneralGoals:
+    """What the learned general policy is built toward beyond the bars: each printed in REPORT.md with what the
+    seeds measured and how far it falls short, on the test and real lakes."""
+
+    mean_of_lloyd: Positive  # still water: the seeds' mean coverage over the cells, a multiple of lloyd_tuned's ...
+    mean_of_decentralised: Positive  # ... and of decentralised Lloyd's
+    of_planner: Positive  # still water: every cell, every seed at least this fraction of the planner
+    lake_files_of_best: Positive  # each real lake file, still water, each start: of the best layout ...
+    lake_fleet: Fleet  # ... at this many buoys
+    channel: Text  # the long channel: this region with ``channel_fleet`` buoys from the corner, still water ...
+    channel_fleet: Fleet
+    channel_of_lloyd: Positive  # ... at least this multiple of lloyd_tuned
+    seed_cpu_s: Positive  # one core's seconds a reported general seed may take
+
+
+@section
 class ReportConfig:
     """The verdict rules, fixed before the numbers (REPORT.md prints each beside its verdict)."""
 
@@ -212,6 +229,7 @@ class ReportConfig:
     targets: dict[str, Target]  # region → tuned CR-MARL's coverage bar, on every seed
     target_seconds: Positive  # one core's seconds per 10,000-episode run
     general: GeneralTargets
+    goals: GeneralGoals
 
 
 @section

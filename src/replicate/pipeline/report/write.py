@@ -13,7 +13,8 @@ import jinja2
 from replicate.core import artifacts
 from replicate.core.params import Cell, RegionKey
 from replicate.pipeline.report.claims import claims, comparisons, cpu_timed, sensitivity, targets
-from replicate.pipeline.report.general import general_section, tried_section
+from replicate.pipeline.report.general import general_section, one_limit, tried_section
+from replicate.pipeline.report.goals import goal_section
 from replicate.pipeline.report.rules import fmt, fmt_t, span
 from replicate.pipeline.report.tables import (
     ablation_rows,
@@ -59,11 +60,17 @@ def robustness_context(params, summary: dict, regions: list[str]) -> dict:
             "robustness_rule": "|---|---|" + "---|" * len(scenarios)}
 
 
+def seed_cpu(runs: dict) -> dict[int, float]:
+    """{seed: one core's seconds} of the reported general seeds (``policies/summary.json``); empty without it."""
+    return {r["seed"]: r["cpu_seconds"] for r in runs.get("runs", []) if r.get("cpu_seconds")}
+
+
 def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict[str, str], figures: list[str],
                  out: str, stage_times: dict, general_path: str | None = None,
-                 comparisons_dir: str | None = None) -> str:
+                 comparisons_dir: str | None = None, general_runs_path: str | None = None) -> str:
     """Write ``REPORT.md`` to ``out`` from the pipeline's results → its text; with ``comparisons_dir`` the
-    ``replicate compare`` records there (those with a verdict) are listed under the general policy."""
+    ``replicate compare`` records there (those with a verdict) are listed under the general policy, with
+    ``general_runs_path`` (``policies/summary.json``) the reported seeds' training time beside its goal."""
     summary, timing = read_json(summary_path), read_json(timing_path, {})
     general = read_json(general_path)
     records = {p.stem: read_json(str(p)) for p in sorted(Path(comparisons_dir).glob("*.json"))} \
@@ -85,7 +92,9 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
         "wall_timed": bool(timing) and not cpu_timed(timing.get("runs", [])),
         "budgets": budgets(params, tuning), "budget_confound": budget_confound(params, tuning),
         **robustness_context(params, summary, regions),
-        "general": [*general_section(params, general, summary), *tried_section(
+        "general": [*general_section(params, general, summary),
+                    *goal_section(params, one_limit(general["cells"]), seed_cpu(read_json(general_runs_path, {}))),
+                    *tried_section(
             {k: r for k, r in records.items() if "verdict" in r})] if general is not None else [],
         "ablation": ablation_rows(summary, rules.margin), "ablation_seeds": ", ".join(map(str, params.ablation.seeds)),
         "runs": [(Cell.parse(key), r) for key, r in summary["runs"].items()],

@@ -1,0 +1,115 @@
+"""The general policy's goals (``report.goals``): what the learned policy is built toward beyond the bars of
+``report.general`` — above clairvoyant Lloyd on average, well above the decentralised Lloyd that sees what it sees,
+near the planner everywhere, near the best layout on real lakes with arms, the long channel closed — each as a
+Markdown row with what the seeds measured, how far it falls short and its verdict, on the lakes no choice read."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from replicate.pipeline.report.general import VERDICT_KINDS, kind_of, rival, seed_coverages
+
+
+@dataclass(frozen=True)
+class Goal:
+    """One goal read on one group of cells: ``value`` against ``target`` (met when at least it, or at most it
+    where ``at_most``), ``said`` the measured value as printed."""
+
+    goal: str
+    lakes: str
+    value: float
+    target: float
+    said: str
+    at_most: bool = False
+
+    @property
+    def met(self) -> bool:
+        return self.value <= self.target if self.at_most else self.value >= self.target
+
+    def row(self) -> str:
+        short = "—" if self.met else f"{abs(self.target - self.value):.3f}" if not self.at_most \
+            else f"{self.value - self.target:.0f} s"
+        return f"| {self.goal} | {self.lakes} | {self.said} | {short} | {'met' if self.met else '**not met**'} |"
+
+
+def mean_share(cells: list[dict], of: str) -> float:
+    """The seeds' mean coverage over ``cells`` / comparison ``of``'s mean coverage over the same cells."""
+    return float(np.mean([np.mean(list(seed_coverages(c).values())) for c in cells])
+                 / np.mean([rival(c, of) for c in cells]))
+
+
+def worst_share(cells: list[dict], of: str, bar: float) -> tuple[float, str]:
+    """(the lowest share of ``of`` any seed reached in any cell, "worst W; K of M cells at ``bar`` or above with
+    every seed")."""
+    worst = [min(seed_coverages(c).values()) / rival(c, of) for c in cells]
+    return min(worst), f"worst {min(worst):.3f}; {sum(w >= bar for w in worst)} of {len(cells)} cells"
+
+
+def kind_goals(params, cells: list[dict], kind: str) -> list[Goal]:
+    """The goals read over every still-water cell of lake kind ``kind``."""
+    g, bars = params.report.goals, params.report.general
+    still = [c for c in cells if kind_of(params, c) == kind and c["event"] == "none"]
+    if not still:
+        return []
+    lakes = f"{kind} ({len(still)} cells)"
+    out = []
+    for of, target in (("lloyd_tuned", g.mean_of_lloyd), ("decentralised_lloyd", g.mean_of_decentralised)):
+        share = mean_share(still, of)
+        out.append(Goal(f"still water: mean coverage ≥ {target:g} × {of}'s", lakes, share, target, f"{share:.3f} ×"))
+    for of, bar, label in (("lloyd_tuned", bars.of_lloyd, f"≥ {bars.of_lloyd:.0%} of lloyd_tuned"),
+                           ("naive_tuned", 1.0, "above naive_tuned"),
+                           ("planner", g.of_planner, f"≥ {g.of_planner:.0%} of the planner")):
+        worst, said = worst_share(still, of, bar)
+        out.append(Goal(f"still water: every cell, every seed {label}", lakes, worst, bar, said))
+    return out
+
+
+def lake_file_goals(params, cells: list[dict]) -> list[Goal]:
+    """Each real lake file at ``report.goals.lake_fleet`` buoys in still water, each start: the seeds' mean
+    coverage as a share of the lake's best layout."""
+    g = params.report.goals
+    names = [Path(f).stem for f in params.general.suite.real_lakes]
+    out = []
+    for c in cells:
+        if c["region"] in names and c["n_agents"] == g.lake_fleet and c["event"] == "none":
+            share = float(np.mean(list(seed_coverages(c).values()))) / rival(c, "best_layout")
+            out.append(Goal(f"still water, a real lake file: ≥ {g.lake_files_of_best:.0%} of the best layout",
+                            f"{c['region']}, N = {c['n_agents']}, {c['start']} start", share, g.lake_files_of_best,
+                            f"{share:.3f}"))
+    return out
+
+
+def channel_goal(params, cells: list[dict]) -> list[Goal]:
+    """The long channel (``report.goals.channel`` with ``channel_fleet`` buoys) from the corner in still water: the
+    seeds' mean against lloyd_tuned."""
+    g = params.report.goals
+    found = [c for c in cells if (c["region"], c["n_agents"], c["start"], c["event"])
+             == (g.channel, g.channel_fleet, "corner", "none")]
+    if not found:
+        return []
+    policy = float(np.mean(list(seed_coverages(found[0]).values())))
+    share = policy / rival(found[0], "lloyd_tuned")
+    return [Goal(f"still water, the long channel: ≥ {g.channel_of_lloyd:.2f} × lloyd_tuned",
+                 f"{g.channel}, N = {g.channel_fleet}, corner start", share, g.channel_of_lloyd,
+                 f"{policy:.3f} against {rival(found[0], 'lloyd_tuned'):.3f} ({share:.3f} ×)")]
+
+
+def goal_section(params, cells: list[dict], seed_cpu: dict[int, float] | None = None) -> list[str]:
+    """The goals of ``report.goals`` on the test and real lakes, the long channel and a reported seed's training
+    time (``seed_cpu``: one core's seconds by seed, from ``policies/summary.json``), as a Markdown table."""
+    goals = [goal for kind in VERDICT_KINDS for goal in kind_goals(params, cells, kind)]
+    goals += [*lake_file_goals(params, cells), *channel_goal(params, cells)]
+    if seed_cpu:
+        worst = max(seed_cpu.values())
+        goals.append(Goal(f"a reported seed trains within {params.report.goals.seed_cpu_s:.0f} s of one core",
+                          f"{len(seed_cpu)} seeds", worst, params.report.goals.seed_cpu_s,
+                          f"{min(seed_cpu.values()):.0f}-{worst:.0f} s", at_most=True))
+    return ["Goals of the learned policy (`report.goals`), beyond the bars: what the seeds measured (their mean, "
+            "or the worst seed in the worst cell where every cell is asked), and how far each falls short; the "
+            "changes tried toward them are listed below. Deployment's cost per buoy and step is a benchmark "
+            "(`make bench`), not a result of the pipeline.", "",
+            "| goal (`report.goals`) | lakes | measured | short by | verdict |", "|---|---|---|---|---|",
+            *(goal.row() for goal in goals), ""]
