@@ -30,8 +30,8 @@
    (batches timed across its training worlds, scaled to ``general.episodes``) with the actor as trained and with
    the averaged compass actor (``symmetry: d4``, its value before ``d4_frame``), against its target.
 7. What a field team waits for (``benchmarks/field_bench.py``): `replicate --help`'s start-up, `act --stream`'s
-   latency per step, `replicate plan` on a real lake, and `replicate evaluate --policy` on each real lake (wall
-   time and peak memory against their targets).
+   latency per step (9 buoys) and per buoy and step (50 buoys in one stream), `replicate plan` on a real lake, and
+   `replicate evaluate --policy` on each real lake (wall time and peak memory against their targets).
 8. The pipeline from scratch, stage by stage: ``train`` as section 1 projects it, the general seeds' stages from
    section 6's seed, the others as the last measured forced ``dvc repro`` (``benchmarks/from_scratch.json``), in
    all and with 8 reported general seeds, against its target.

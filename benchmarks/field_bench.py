@@ -123,6 +123,10 @@ def field_section(targets: BenchTargets) -> None:
         print(f"`replicate act --stream --real` (general policy, 9 buoys): first answer after {first:.2f} s, then "
               f"{per_step * 1e3:.3f} ms per step (target <= {targets.act_step_ms:g} ms: "
               f"{per_step * 1e3 / targets.act_step_ms:.2f}x of it)")
+        _, fleet_step = stream_latency(policy, steps=500, buoys=targets.act_fleet)
+        per_buoy = fleet_step * 1e3 / targets.act_fleet
+        print(f"... {targets.act_fleet} buoys in one stream: {fleet_step * 1e3:.3f} ms per step, {per_buoy:.3f} ms per "
+              f"buoy and step (target <= {targets.act_buoy_ms:g} ms: {per_buoy / targets.act_buoy_ms:.2f}x of it)")
         seconds, peak = plan_seconds(Path(tmp) / "plan")
         print(f"`replicate plan` on Lake Karaguz (9 buoys, 25 m, 1 m/s, the whole mission): {seconds:.1f} s, "
               f"peak {peak:.0f} MB (target <= {targets.peak_mb:.0f} MB)")

@@ -243,6 +243,8 @@ class BenchTargets:
     large_lake_evaluate_s: Positive  # ... on a generated 4,000-vertex lake with arms and islands
     peak_mb: Positive  # peak memory of a field command
     act_step_ms: Positive  # ``act --stream``: milliseconds per step, one core
+    act_buoy_ms: Positive  # ... and per buoy and step with ``act_fleet`` buoys in one stream
+    act_fleet: Fleet
 
 
 @section
