@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from replicate.pipeline.report.goals import goal_section, kind_goals
+from replicate.pipeline.report.goals import Goal, goal_section, kind_goals
 
 
 def cell(region, policy, lloyd, *, kind="test", n=9, start="corner", event="none", best=0.8, planner=None):
@@ -20,12 +20,19 @@ def test_each_goal_is_read_from_every_seed_and_says_how_far_it_falls_short(param
     goals = {g.goal: g for g in kind_goals(params, cells, "test")}
     mean = goals["still water: mean coverage ≥ 1.02 × lloyd_tuned's"]
     assert abs(mean.value - 0.69 / 0.70) < 1e-12 and not mean.met  # (0.73 + 0.65) / 2 against 0.70
-    assert f"| {0.02 + 1 - 0.69 / 0.70:.3f} | **not met** |" in mean.row()
+    assert f"| {0.02 + 1 - 0.69 / 0.70:.3f} | {0.8 / 0.7:.3f} | **not met** |" in mean.row()  # the best layout 0.8
     every = goals["still water: every cell, every seed ≥ 98% of lloyd_tuned"]
     assert every.said == f"worst {0.60 / 0.70:.3f}; 1 of 2 cells" and not every.met  # one seed of lake-b short
     decentralised = goals["still water: mean coverage ≥ 1.15 × decentralised_lloyd's"]
-    assert abs(decentralised.value - 0.69 / 0.60) < 1e-12 and decentralised.met and "| — | met |" in decentralised.row()
+    assert abs(decentralised.value - 0.69 / 0.60) < 1e-12 and decentralised.met
+    assert decentralised.row().endswith(f"| — | {0.8 / 0.6:.3f} | met |")
     assert kind_goals(params, cells, "real") == []  # no real lake among the cells
+
+
+def test_a_goal_above_the_best_layout_says_so():
+    """A goal that asks more than the best layout gives is marked: no controller is known to reach it."""
+    assert "| 1.010 (below the goal) | **not met** |" in Goal("g", "l", 1.0, 1.02, "1.000 ×", limit=1.01).row()
+    assert "| 1.030 | **not met** |" in Goal("g", "l", 1.0, 1.02, "1.000 ×", limit=1.03).row()
 
 
 def test_the_lake_files_the_channel_and_a_seeds_time_have_their_own_rows(params):
@@ -35,8 +42,9 @@ def test_the_lake_files_the_channel_and_a_seeds_time_have_their_own_rows(params)
              cell(lake, (0.50, 0.52), 0.50, kind="real", n=g.lake_fleet + 1, best=0.75),  # another fleet: not a goal
              cell(g.channel, (0.64, 0.66), 0.75, kind="trained", n=g.channel_fleet)]
     text = "\n".join(goal_section(params, cells, {10: 400.0, 11: 2000.0}))
-    assert f"| {lake}, N = {g.lake_fleet}, corner start | {0.71 / 0.75:.3f} | — | met |" in text
+    assert f"| {lake}, N = {g.lake_fleet}, corner start | {0.71 / 0.75:.3f} | — | — | met |" in text
     assert f"N = {g.lake_fleet + 1}" not in text
-    assert f"| 0.650 against 0.750 ({0.65 / 0.75:.3f} ×) | {1 - 0.65 / 0.75:.3f} | **not met** |" in text
-    assert f"| 2 seeds | 400-2000 s | {2000 - g.seed_cpu_s:.0f} s | **not met** |" in text
+    assert f"| 0.650 against 0.750 ({0.65 / 0.75:.3f} ×) | {1 - 0.65 / 0.75:.3f} | {0.8 / 0.75:.3f} | **not met** |" \
+        in text
+    assert f"| 2 seeds | 400-2000 s | {2000 - g.seed_cpu_s:.0f} s | — | **not met** |" in text
     assert "a reported seed" not in "\n".join(goal_section(params, cells))  # no run record: no row
