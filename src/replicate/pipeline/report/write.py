@@ -94,8 +94,8 @@ def write_report(params, summary_path: str, timing_path: str, tuning_paths: dict
         **robustness_context(params, summary, regions),
         "general": [*general_section(params, general, summary),
                     *goal_section(params, one_limit(general["cells"]), seed_cpu(read_json(general_runs_path, {}))),
-                    *tried_section(
-            {k: r for k, r in records.items() if "verdict" in r})] if general is not None else [],
+                    *tried_section({k: r for k, r in records.items() if "verdict" in r})]
+        if general is not None else [],
         "ablation": ablation_rows(summary, rules.margin), "ablation_seeds": ", ".join(map(str, params.ablation.seeds)),
         "runs": [(Cell.parse(key), r) for key, r in summary["runs"].items()],
         "baselines": [(*astuple(RegionKey.parse(key)), b) for key, b in sorted(summary["baselines"].items())],
