@@ -1,7 +1,8 @@
-"""The general policy's goals (``report.goals``): what the learned policy is built toward beyond the bars of
+"""The general policy's goals (``report.goals``): what the learned policy is built toward beside the bars of
 ``report.general`` — above clairvoyant Lloyd on average, well above the decentralised Lloyd that sees what it sees,
 near the planner everywhere, near the best layout on real lakes with arms, the long channel closed — each as a
-Markdown row with what the seeds measured, how far it falls short and its verdict, on the lakes no choice read."""
+Markdown row with what the seeds measured, how far it falls short and its verdict: on the test and real lakes,
+which no choice read, and on the long channel, a training world."""
 
 from __future__ import annotations
 
@@ -16,8 +17,9 @@ from replicate.pipeline.report.general import VERDICT_KINDS, kind_of, rival, see
 @dataclass(frozen=True)
 class Goal:
     """One goal read on one group of cells: ``value`` against ``target`` (met when at least it, or at most it
-    where ``at_most``), ``said`` the measured value as printed; ``limit`` the best layout read the same way (what
-    no controller is known to exceed: a goal above it asks more than any layout found gives)."""
+    where ``at_most``; above it where ``strict``), ``said`` the measured value as printed; ``limit`` the best
+    layout read the same way (what no controller is known to exceed: a goal above it asks more than any layout
+    found gives)."""
 
     goal: str
     lakes: str
@@ -26,10 +28,13 @@ class Goal:
     said: str
     limit: float | None = None
     at_most: bool = False
+    strict: bool = False
 
     @property
     def met(self) -> bool:
-        return self.value <= self.target if self.at_most else self.value >= self.target
+        if self.at_most:
+            return self.value <= self.target
+        return self.value > self.target if self.strict else self.value >= self.target
 
     def row(self) -> str:
         short = "—" if self.met else f"{abs(self.target - self.value):.3f}" if not self.at_most \
@@ -47,11 +52,12 @@ def mean_share(cells: list[dict], of: str, who: str = "policy") -> float:
     return float(np.mean(mine) / np.mean([rival(c, of) for c in cells]))
 
 
-def worst_share(cells: list[dict], of: str, bar: float) -> tuple[float, str]:
+def worst_share(cells: list[dict], of: str, bar: float, strict: bool = False) -> tuple[float, str]:
     """(the lowest share of ``of`` any seed reached in any cell, "worst W; K of M cells at ``bar`` or above with
-    every seed")."""
+    every seed", above it where ``strict``)."""
     worst = [min(seed_coverages(c).values()) / rival(c, of) for c in cells]
-    return min(worst), f"worst {min(worst):.3f}; {sum(w >= bar for w in worst)} of {len(cells)} cells"
+    meets = sum(w > bar if strict else w >= bar for w in worst)
+    return min(worst), f"worst {min(worst):.3f}; {meets} of {len(cells)} cells"
 
 
 def worst_limit(cells: list[dict], of: str) -> float:
@@ -71,12 +77,12 @@ def kind_goals(params, cells: list[dict], kind: str) -> list[Goal]:
         share = mean_share(still, of)
         out.append(Goal(f"still water: mean coverage ≥ {target:g} × {of}'s", lakes, share, target, f"{share:.3f} ×",
                         mean_share(still, of, "best_layout")))
-    for of, bar, label in (("lloyd_tuned", bars.of_lloyd, f"≥ {bars.of_lloyd:.0%} of lloyd_tuned"),
-                           ("naive_tuned", 1.0, "above naive_tuned"),
-                           ("planner", g.of_planner, f"≥ {g.of_planner:.0%} of the planner")):
-        worst, said = worst_share(still, of, bar)
+    for of, bar, label, strict in (("lloyd_tuned", bars.of_lloyd, f"≥ {bars.of_lloyd:.0%} of lloyd_tuned", False),
+                                   ("naive_tuned", 1.0, "above naive_tuned", True),
+                                   ("planner", g.of_planner, f"≥ {g.of_planner:.0%} of the planner", False)):
+        worst, said = worst_share(still, of, bar, strict)
         out.append(Goal(f"still water: every cell, every seed {label}", lakes, worst, bar, said,
-                        worst_limit(still, of)))
+                        worst_limit(still, of), strict=strict))
     return out
 
 
@@ -121,8 +127,10 @@ def goal_section(params, cells: list[dict], seed_cpu: dict[int, float] | None = 
         goals.append(Goal(f"a reported seed trains within {params.report.goals.seed_cpu_s:.0f} s of one core",
                           f"{len(seed_cpu)} seeds", worst, params.report.goals.seed_cpu_s,
                           f"{min(seed_cpu.values()):.0f}-{worst:.0f} s", at_most=True))
-    return ["Goals of the learned policy (`report.goals`), beyond the bars: what the seeds measured (their mean, "
-            "or the worst seed in the worst cell where every cell is asked), how far each falls short, and the best "
+    return ["Goals of the learned policy (`report.goals`), beside the bars (two of them, 98 % of Lloyd and above "
+            "naive swarming, asked again): what the seeds measured (their mean coverage against the comparison's "
+            "mean, or the worst seed in the worst cell where every cell is asked), how far each falls short, and the "
+            "best "
             "layout read the same way (a goal above it asks more than any layout found gives, whatever the "
             "controller); the changes tried toward them are listed below. Deployment's cost per buoy and step is a "
             "benchmark (`make bench` section 7), not a result of the pipeline.", "",
