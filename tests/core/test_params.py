@@ -74,6 +74,9 @@ def write(tmp_path, mutate):
         (lambda r: r["yardstick"].update(seeds=[3, 4, 5, 6, 7, 8, 9, 10]),
          r"yardstick.seeds: \[10\] also in general.seeds"),
         (lambda r: r.pop("yardstick"), "missing key 'yardstick'"),
+        (lambda r: r["general"]["learner"].update(hops=2, layers=3),
+         r"general.learner: hops \(messages\) have a network of their own"),
+        (lambda r: r["general"]["learner"].update(layers=0), "layers"),
     ],
 )
 def test_bad_params_are_refused(tmp_path, mutate, message):

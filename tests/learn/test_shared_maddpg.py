@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from replicate.core.sections import SharedLearnerConfig
+from replicate.core.sections import SensorsConfig, SharedLearnerConfig
 from replicate.learn.replay import Batch
 from replicate.learn.shared_maddpg import PooledCritic, SharedActor, SharedMADDPG
+from replicate.world.env import observation_columns
 
 OD, AD = 22, 2
 
@@ -302,3 +303,18 @@ def test_the_averaged_actor_follows_the_trained_one_at_its_rate_and_is_the_one_d
     assert not torch.allclose(averaged.policy(b.obs, None, None), averaged.actor(b.obs)[0])
     noiseless = averaged.act(b.obs, 0.0, torch.Generator().manual_seed(0))
     torch.testing.assert_close(noiseless, averaged.actor(b.obs)[0].clamp(-1, 1))
+
+
+@pytest.mark.parametrize("symmetry", ["none", "d4_frame"])
+def test_layers_sets_the_depth_of_the_actor_and_the_critic_and_is_read_back_from_the_weights(symmetry):
+    """``layers`` hidden layers in the actor's MLP and the critic's Q head (φ keeps one); a state dict alone gives
+    back the width and the depth it was trained with (``replicate cover --finetune`` reads them so)."""
+    columns = observation_columns("local", SensorsConfig()) if symmetry != "none" else None
+    od = len(columns) if columns else OD
+    for layers in (1, 2, 3):
+        cfg = SharedLearnerConfig(hidden=24, embed=8, layers=layers, symmetry=symmetry)
+        agent = SharedMADDPG(od, AD, cfg, seed=0, columns=columns)
+        linear = lambda net: sum(isinstance(m, torch.nn.Linear) for m in net.modules())  # noqa: E731
+        assert linear(agent.actor) == layers + 1
+        assert linear(agent.critic.q) == layers + 1 and linear(agent.critic.phi) == 2
+        assert SharedActor.shape(agent.actor.state_dict(), symmetry) == (24, layers)

@@ -206,6 +206,7 @@ class SharedLearnerConfig:
     """The networks and optimisers of ``shared_maddpg.SharedMADDPG``."""
 
     hidden: Count = 64
+    layers: Annotated[Int, In(1, 4)] = 2  # hidden layers of the actor's MLP and of the critic's Q head (MADDPG's 2)
     embed: Count = 64  # width of φ, the embedding of one other buoy that the critic pools
     actor_lr: Positive = 1e-3
     critic_lr: Positive = 1e-3
@@ -227,14 +228,18 @@ class SharedLearnerConfig:
     # (``learn.messages``); 0: the actor reads its own sensors only
     average: Annotated[Num, In(0, 1, open_hi=True)] = 0.0  # the validated and deployed actor: a running average of
     # the trained actor's weights, θ̄ ← θ̄ + average·(θ − θ̄) at every update (Polyak averaging); 0: the trained actor
-    OPTIONAL: ClassVar[tuple[str, ...]] = ("symmetry", "imitation", "imitation_weight", "imitation_until",
-                                           "hops", "average")  # left out of a run's identity at their default
+    # left out of a run's identity at their default
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("layers", "symmetry", "imitation", "imitation_weight",
+                                           "imitation_until", "hops", "average")
 
     @model_validator(mode="after")
     def check(self):
         if self.hops and self.symmetry == "d4":
             raise ConfigError("general.learner: hops (messages) run in each buoy's own compass frame: set symmetry "
                               "to d4_frame (or none), not d4")
+        if self.hops and self.layers != 2:
+            raise ConfigError(f"general.learner: hops (messages) have a network of their own (``learn.messages``); "
+                              f"layers ({self.layers}) is the MLP actor's: set layers to 2 or hops to 0")
         if self.imitation != "before" and self.imitation_until != IMITATION_UNTIL:
             raise ConfigError(f"general.learner.imitation_until ({self.imitation_until}) is read by imitation "
                               f"'before' only, and imitation is {self.imitation!r}: set one or leave it at "

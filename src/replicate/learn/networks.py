@@ -33,7 +33,7 @@ class RasterMLP(nn.Module):
     observation's; its ``raster_CHANNEL_A_B`` columns (``sensors.columns``: channel by channel, each row by row
     from the south, each row from the west) are the image [C, k, k]."""
 
-    def __init__(self, columns: list[str], hidden: int, out: int):
+    def __init__(self, columns: list[str], hidden: int, out: int, layers: int = 2):
         super().__init__()
         raster = [c for c, name in enumerate(columns) if name.startswith("raster_")]
         channels = len({name.split("_")[1] for name in columns if name.startswith("raster_")})
@@ -45,7 +45,7 @@ class RasterMLP(nn.Module):
         self.encoder = nn.Sequential(nn.Conv2d(channels, RASTER_FILTERS, 3, padding=1), nn.ReLU(),
                                      nn.Conv2d(RASTER_FILTERS, RASTER_FILTERS, 3, stride=2), nn.ReLU(), nn.Flatten())
         features = self.encoder(torch.zeros(1, channels, self.cells, self.cells)).shape[-1]
-        self.mlp = mlp([len(columns) - len(raster) + features, hidden, hidden, out])
+        self.mlp = mlp([len(columns) - len(raster) + features, *[hidden] * layers, out])
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         image = obs.index_select(-1, self.raster_index).reshape(-1, self.channels, self.cells, self.cells)
@@ -53,9 +53,9 @@ class RasterMLP(nn.Module):
         return self.mlp(torch.cat([obs.index_select(-1, self.rest_index), seen], dim=-1))
 
 
-def observation_net(columns: list[str], in_dim: int, hidden: int, out: int) -> nn.Module:
+def observation_net(columns: list[str], in_dim: int, hidden: int, out: int, layers: int = 2) -> nn.Module:
     """The network over one buoy's observation [..., in_dim] → [..., out]: ``RasterMLP`` when ``columns`` hold a
-    local raster, else the two-layer MLP."""
+    local raster, else the MLP of ``layers`` hidden layers ``hidden`` wide."""
     if any(name.startswith("raster_") for name in columns):
-        return RasterMLP(columns, hidden, out)
-    return mlp([in_dim, hidden, hidden, out])
+        return RasterMLP(columns, hidden, out, layers)
+    return mlp([in_dim, *[hidden] * layers, out])

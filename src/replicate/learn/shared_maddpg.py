@@ -44,7 +44,8 @@ class SharedActor(nn.Module):
     reads whole fleets: ``fleet``."""
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: int, symmetry: str = "none",
-                 columns: list[str] | None = None, hops: int = 0, sensors: SensorsConfig | None = None):
+                 columns: list[str] | None = None, hops: int = 0, sensors: SensorsConfig | None = None,
+                 layers: int = 2):
         super().__init__()
         self.hops = hops
         if hops:
@@ -52,13 +53,14 @@ class SharedActor(nn.Module):
             self.net = MessageActor(obs_dim, act_dim, hidden, hops, columns or [], sensors.neighbours,
                                     sensors.comm_range, canonical=symmetry == "d4_frame")
         else:
-            self.net = symmetric(observation_net(columns or [], obs_dim, hidden, act_dim), columns or [], symmetry)
+            self.net = symmetric(observation_net(columns or [], obs_dim, hidden, act_dim, layers), columns or [],
+                                 symmetry)
 
     @classmethod
     def of(cls, obs_dim: int, act_dim: int, cfg: SharedLearnerConfig, columns: list[str] | None = None,
            sensors: SensorsConfig | None = None):
         """The actor of a learner's configuration: the one place its network is read from ``general.learner``."""
-        return cls(obs_dim, act_dim, cfg.hidden, cfg.symmetry, columns, cfg.hops, sensors)
+        return cls(obs_dim, act_dim, cfg.hidden, cfg.symmetry, columns, cfg.hops, sensors, cfg.layers)
 
     @classmethod
     def from_checkpoint(cls, saved: dict):
@@ -69,6 +71,15 @@ class SharedActor(nn.Module):
                        SensorsConfig(**saved["sensors"]) if saved.get("sensors") else None)
         actor.load_state_dict(saved["actor"])
         return actor
+
+    @staticmethod
+    def shape(weights: dict[str, torch.Tensor], symmetry: str = "none") -> tuple[int, int]:
+        """(width, hidden layers) of the MLP actor whose state dict is ``weights`` (a symmetric actor's MLP sits
+        inside its average): what a checkpoint without its learner's configuration is read back with."""
+        prefix = "net.net." if symmetry != "none" else "net."
+        linear = [k for k in weights if k.startswith(prefix) and k.endswith(".weight")
+                  and k[len(prefix):-len(".weight")].isdigit()]
+        return int(weights[prefix + "0.weight"].shape[0]), len(linear) - 1
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         pre = self.net(obs)
@@ -113,10 +124,10 @@ class PooledCritic(nn.Module):
     mean embedding [L, embed]) and ``score`` (Q from it)."""
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: int, embed: int, pool_range: float = 0.0,
-                 pool_neighbours: int = 0):
+                 pool_neighbours: int = 0, layers: int = 2):
         super().__init__()
         self.phi = mlp([obs_dim + act_dim + 2, embed, embed])
-        self.q = mlp([obs_dim + act_dim + embed, hidden, hidden, 1])
+        self.q = mlp([obs_dim + act_dim + embed, *[hidden] * layers, 1])
         self.pool_range, self.pool_neighbours = pool_range, pool_neighbours
 
     def neighbours(self, pos, live, rows: Rows) -> Neighbours:
@@ -171,7 +182,7 @@ class SharedMADDPG:
             torch.manual_seed(seed)
             self.actor = SharedActor.of(obs_dim, act_dim, cfg, columns, sensors)
             self.critic = PooledCritic(obs_dim, act_dim, cfg.hidden, cfg.embed, cfg.pool_range,
-                                       cfg.pool_neighbours)
+                                       cfg.pool_neighbours, cfg.layers)
         self.actor_target, self.critic_target = copy.deepcopy(self.actor), copy.deepcopy(self.critic)
         self.actor_average = copy.deepcopy(self.actor) if cfg.average else None  # what is validated and deployed
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)

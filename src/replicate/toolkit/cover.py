@@ -38,6 +38,7 @@ from replicate.core.params import Params, run_config
 from replicate.core.schema import ConfigError
 from replicate.core.sections import IMITATION_UNTIL, SensorsConfig
 from replicate.learn.general_train import GeneralTrainer
+from replicate.learn.shared_maddpg import SharedActor
 from replicate.learn.train import train
 from replicate.toolkit.export import export_general
 from replicate.toolkit.field import write_mission
@@ -131,8 +132,8 @@ def finetuned(policy: Path, module, meta: dict, params: Params, region, steps: i
     gc, weights = params.general, dict(module.state_dict())
     try:
         symmetry = meta.get("symmetry", "none")  # a symmetric actor's MLP sits inside its average
-        first = "net.net.0.weight" if symmetry != "none" else "net.0.weight"
-        learner = dataclasses.replace(gc.learner, hidden=int(weights[first].shape[0]), symmetry=symmetry,
+        hidden, layers = SharedActor.shape(weights, symmetry)
+        learner = dataclasses.replace(gc.learner, hidden=hidden, layers=layers, symmetry=symmetry,
                                       imitation="none", imitation_until=IMITATION_UNTIL)  # no teacher here
         gc = dataclasses.replace(gc, episodes=episodes - episodes % gc.n_envs, episode_length=steps,
                                  grown_horizon=False,  # ``steps`` is this lake's T already
