@@ -238,7 +238,7 @@ class SharedLearnerConfig:
             raise ConfigError("general.learner: hops (messages) run in each buoy's own compass frame: set symmetry "
                               "to d4_frame (or none), not d4")
         if self.hops and self.layers != 2:
-            raise ConfigError(f"general.learner: hops (messages) have a network of their own (``learn.messages``); "
+            raise ConfigError("general.learner: hops (messages) have a network of their own (``learn.messages``); "
                               f"layers ({self.layers}) is the MLP actor's: set layers to 2 or hops to 0")
         if self.imitation != "before" and self.imitation_until != IMITATION_UNTIL:
             raise ConfigError(f"general.learner.imitation_until ({self.imitation_until}) is read by imitation "
