@@ -305,6 +305,10 @@ def test_the_averaged_actor_follows_the_trained_one_at_its_rate_and_is_the_one_d
     torch.testing.assert_close(noiseless, averaged.actor(b.obs)[0].clamp(-1, 1))
 
 
+def linear_layers(net: torch.nn.Module) -> int:
+    return sum(isinstance(m, torch.nn.Linear) for m in net.modules())
+
+
 @pytest.mark.parametrize("symmetry", ["none", "d4_frame"])
 def test_layers_sets_the_depth_of_the_actor_and_the_critic_and_is_read_back_from_the_weights(symmetry):
     """``layers`` hidden layers in the actor's MLP and the critic's Q head (φ keeps one); a state dict alone gives
@@ -314,7 +318,6 @@ def test_layers_sets_the_depth_of_the_actor_and_the_critic_and_is_read_back_from
     for layers in (1, 2, 3):
         cfg = SharedLearnerConfig(hidden=24, embed=8, layers=layers, symmetry=symmetry)
         agent = SharedMADDPG(od, AD, cfg, seed=0, columns=columns)
-        linear = lambda net: sum(isinstance(m, torch.nn.Linear) for m in net.modules())  # noqa: E731
-        assert linear(agent.actor) == layers + 1
-        assert linear(agent.critic.q) == layers + 1 and linear(agent.critic.phi) == 2
+        assert linear_layers(agent.actor) == layers + 1
+        assert linear_layers(agent.critic.q) == layers + 1 and linear_layers(agent.critic.phi) == 2
         assert SharedActor.shape(agent.actor.state_dict(), symmetry) == (24, layers)
