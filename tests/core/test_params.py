@@ -77,6 +77,10 @@ def write(tmp_path, mutate):
         (lambda r: r["general"]["learner"].update(hops=2, layers=3),
          r"general.learner: hops \(messages\) have a network of their own"),
         (lambda r: r["general"]["learner"].update(layers=0), "layers"),
+        (lambda r: r["general"]["learner"].update(lloyd_prior=10.0),
+         r"general.learner.lloyd_prior \(10.0\) steers toward the local centroid"),
+        (lambda r: (r["general"]["learner"].update(lloyd_prior=10.0, hops=2),
+                    r["general"]["sensors"].update(centroid=True)), "lloyd_prior is added to the MLP actor"),
     ],
 )
 def test_bad_params_are_refused(tmp_path, mutate, message):

@@ -321,3 +321,46 @@ def test_layers_sets_the_depth_of_the_actor_and_the_critic_and_is_read_back_from
         assert linear_layers(agent.actor) == layers + 1
         assert linear_layers(agent.critic.q) == layers + 1 and linear_layers(agent.critic.phi) == 2
         assert SharedActor.shape(agent.actor.state_dict(), symmetry) == (24, layers)
+
+
+def test_a_lloyd_prior_steers_toward_the_local_centroid_and_the_network_corrects_it(tmp_path):
+    """With ``lloyd_prior`` g, the action is tanh(f(o) + g · (centroid_dx, centroid_dy)): Lloyd's law alone where
+    the network's output f is 0, which is what the actor's regulariser reads; padded fleets and the exported file
+    act alike; an observation without the centroid's columns is refused."""
+    from replicate.core import artifacts
+    from replicate.core.schema import to_dict
+    from replicate.learn.policy import load_policy
+    from replicate.toolkit.export import export_general
+
+    sensors = SensorsConfig(centroid=True)
+    columns = observation_columns("local", sensors)
+    cfg = SharedLearnerConfig(hidden=16, embed=8, symmetry="d4_frame", lloyd_prior=10.0)
+    agent = SharedMADDPG(len(columns), AD, cfg, seed=0, columns=columns, sensors=sensors)
+    obs = torch.randn(5, 7, len(columns), generator=torch.Generator().manual_seed(1))
+    act, pre = agent.actor(obs)
+    torch.testing.assert_close(act, torch.tanh(pre + 10.0 * obs[..., -2:]))
+    with torch.no_grad():
+        agent.actor.net.net[-1].weight.zero_()
+        agent.actor.net.net[-1].bias.zero_()
+    act, pre = agent.actor(obs)
+    assert pre.abs().max() == 0
+    torch.testing.assert_close(act, torch.tanh(10.0 * obs[..., -2:]))
+    live = torch.ones(5, 7, dtype=torch.bool)
+    live[:, 5:] = False
+    fleet_act, fleet_pre = agent.actor.fleet(obs, torch.zeros(5, 7, 2), live)
+    torch.testing.assert_close(fleet_act[live], act[live])
+    assert fleet_act[~live].abs().max() == 0 and fleet_pre[~live].abs().max() == 0
+
+    torch.manual_seed(2)
+    agent = SharedMADDPG(len(columns), AD, cfg, seed=3, columns=columns, sensors=sensors)
+    artifacts.torch_save(tmp_path / "actor.pt", {
+        "format": artifacts.CHECKPOINT_FORMAT, "actor": agent.actor.state_dict(), "observation": "local",
+        "sensors": to_dict(sensors), "columns": columns, "learner": to_dict(cfg), "hidden": 16,
+        "symmetry": "d4_frame", "selected_episode": 0, "seed": 3})
+    meta = export_general(tmp_path / "actor.pt", tmp_path / "policy.pt")
+    module, _ = load_policy(tmp_path / "policy.pt")
+    assert meta["lloyd_prior"]["gain_per_sim_m"] == 10.0
+    with torch.no_grad():
+        torch.testing.assert_close(module(obs), agent.actor(obs)[0])
+    with pytest.raises(ValueError, match="needs its columns"):
+        SharedActor.of(OD, AD, cfg, observation_columns("local", SensorsConfig()))

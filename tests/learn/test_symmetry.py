@@ -20,6 +20,7 @@ from ..world.test_sensors import points_inside
 
 COLUMNS = sensors.columns(4, 8, uncovered=True)
 RASTER_COLUMNS = sensors.columns(4, 8, uncovered=True, raster=5)
+CENTROID_COLUMNS = sensors.columns(4, 8, centroid=True)
 
 
 def turned(g: np.ndarray, obs: np.ndarray, columns: list[str] = COLUMNS) -> np.ndarray:
@@ -62,7 +63,31 @@ def test_a_turned_lake_turns_the_observation(regions, lake):
     assert not np.allclose(turned(d4()[1], before, RASTER_COLUMNS), before), "a quarter turn changes the readings"
 
 
-@pytest.mark.parametrize("columns", [COLUMNS, RASTER_COLUMNS], ids=["sensors", "raster"])
+@pytest.mark.parametrize("lake", ["bedok", "island"])
+def test_a_turned_lake_turns_the_local_centroid(regions, lake):
+    """The local centroid's offset turns as a vector: read in a lake turned or mirrored by g, it is g times what it
+    was, to within a third of its points' spacing (its water grid is the lake's, not turned with it: a point by the
+    shore may read otherwise), and every other column exactly."""
+    water = regions["bedok"].polygon if lake == "bedok" else box(0, 0, 3, 3).difference(box(1.2, 1.2, 1.8, 1.8))
+    rng = np.random.default_rng(4)
+    pos = points_inside(water, 3 * 10, rng).reshape(3, 10, 2)
+    vel = rng.normal(size=(3, 10, 2))
+    directions = sensors.ray_directions(8)
+
+    def observe(poly, p, v):
+        return sensors.local_observation(p, v, sensors.shore_segments(poly), directions, 4, 1.5, 2.0,
+                                         centroid=local_map.LocalCentroid(poly, 2.0))
+
+    before = observe(water, pos, vel)
+    assert before.shape[-1] == len(CENTROID_COLUMNS) and np.abs(before[..., -2:]).max() > 0.3
+    for g in d4():
+        after = observe(affinity.affine_transform(water, [*g[0], *g[1], 0, 0]), pos @ g.T, vel @ g.T)
+        expected = turned(g, before, CENTROID_COLUMNS)
+        np.testing.assert_allclose(after[..., :-2], expected[..., :-2], atol=1e-5)
+        np.testing.assert_allclose(after[..., -2:], expected[..., -2:], atol=2.0 / local_map.CENTROID_STEPS / 3)
+
+
+@pytest.mark.parametrize("columns", [COLUMNS, RASTER_COLUMNS, CENTROID_COLUMNS], ids=["sensors", "raster", "centroid"])
 def test_the_symmetric_actor_turns_its_pushes_with_the_world(columns):
     """μ̄(g·o) = g μ̄(o) for every g of D4 (after the tanh too), averaged over the group or run in each
     observation's canonical frame, with the local raster read through its CNN too; an ordinary actor does not."""

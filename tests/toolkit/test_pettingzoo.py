@@ -273,3 +273,26 @@ def test_a_lake_file_at_the_papers_scale_and_in_metres(params):
     assert infos["buoy_0"]["time_s"] == pytest.approx(metric.units.period_s) and metric.units.period_s > 14
     with pytest.raises(RegionError, match="neither a region of params.yaml"):
         parallel_env(region="lake_nowhere")
+
+
+def test_the_local_centroid_passes_the_api_and_seed_tests():
+    """``sensors.centroid``: 2 more columns, the offset to the local centroid within the shore sensor's reach,
+    through losses and a drift."""
+    from replicate.core.sections import SensorsConfig
+
+    def make():
+        return CoverageParallelEnv("bedok", observation="local", shore="wall", episode_length=20, start="random",
+                                   lose=3, current=(0.6, 0.0),
+                                   sensors_config=SensorsConfig(velocity="ground", centroid=True))
+
+    parallel_api_test(make(), num_cycles=40)
+    parallel_seed_test(make)
+    env = make()
+    assert env.observation_space("buoy_0").shape == (22 + 2,)
+    obs, _ = env.reset(seed=1)
+    offsets = []
+    while env.agents:
+        assert all(env.observation_space(a).contains(o) for a, o in obs.items())
+        offsets += [o[22:] for o in obs.values()]
+        obs, *_ = env.step({a: env.action_space(a).sample() for a in env.agents})
+    assert np.abs(np.stack(offsets)).max() > 0.3

@@ -122,9 +122,11 @@ class SensorsConfig:
     velocity: Literal["water", "ground"] = "water"  # through the water (a log) or over the ground (GPS)
     uncovered: tuple[Num, ...] = ()  # m: radii of ``uncovered_water``'s points along each ray; () = no such sensor
     raster: Annotated[Int, In(0, 31)] = 0  # cells a side of ``local_raster``'s square of half-side ray_range; 0 = none
+    centroid: bool = False  # ``local_map.local_centroid``: the offset to the centroid of the water within ray_range
+    # nearer to the buoy than to any buoy it hears (its cell of decentralised Lloyd, memoryless)
     # Values added after general runs were trained: at their default they are left out of a run's identity
     # (``runs.general_identity``), so adding one keeps the finished runs valid.
-    OPTIONAL: ClassVar[tuple[str, ...]] = ("uncovered", "raster")
+    OPTIONAL: ClassVar[tuple[str, ...]] = ("uncovered", "raster", "centroid")
 
     @model_validator(mode="after")
     def check(self):
@@ -228,15 +230,21 @@ class SharedLearnerConfig:
     # (``learn.messages``); 0: the actor reads its own sensors only
     average: Annotated[Num, In(0, 1, open_hi=True)] = 0.0  # the validated and deployed actor: a running average of
     # the trained actor's weights, θ̄ ← θ̄ + average·(θ − θ̄) at every update (Polyak averaging); 0: the trained actor
+    lloyd_prior: NonNegative = 0.0  # per m: the actor's pre-tanh action is the network's plus this gain × the offset
+    # to the buoy's local centroid (``sensors.centroid``): Lloyd's law as the prior the network corrects (residual
+    # policy learning); 0: the network alone
     # left out of a run's identity at their default
     OPTIONAL: ClassVar[tuple[str, ...]] = ("layers", "symmetry", "imitation", "imitation_weight",
-                                           "imitation_until", "hops", "average")
+                                           "imitation_until", "hops", "average", "lloyd_prior")
 
     @model_validator(mode="after")
     def check(self):
         if self.hops and self.symmetry == "d4":
             raise ConfigError("general.learner: hops (messages) run in each buoy's own compass frame: set symmetry "
                               "to d4_frame (or none), not d4")
+        if self.hops and self.lloyd_prior:
+            raise ConfigError("general.learner: lloyd_prior is added to the MLP actor's action; hops (messages) have a "
+                              "network of their own (``learn.messages``): set one of them to 0")
         if self.hops and self.layers != 2:
             raise ConfigError("general.learner: hops (messages) have a network of their own (``learn.messages``); "
                               f"layers ({self.layers}) is the MLP actor's: set layers to 2 or hops to 0")
@@ -364,6 +372,10 @@ class GeneralConfig:
             raise ConfigError("general.seeds: at least one seed")
         if self.channel_fleet == 1:
             raise ConfigError("general.channel_fleet: 0 (no channel world) or a fleet of at least 2 buoys, got 1")
+        if self.learner.lloyd_prior and not self.sensors.centroid:
+            raise ConfigError(f"general.learner.lloyd_prior ({self.learner.lloyd_prior}) steers toward the local "
+                              "centroid, which the buoy senses only with general.sensors.centroid: true; set it, or "
+                              "lloyd_prior to 0")
         if self.learner.symmetry != "none" and self.sensors.rays % 4:
             raise ConfigError(f"general.learner.symmetry {self.learner.symmetry}: the compass's turns permute the "
                               "shore rays only when their number is a multiple of 4, got general.sensors.rays = "

@@ -48,14 +48,19 @@ class SwarmPolicy(nn.Module):
 
 class FleetPolicy(nn.Module):
     """a_i = tanh(μ(o_i)) for every buoy of a fleet of any size with the one shared actor: obs [N, obs_dim] or
-    [batch, N, obs_dim] → actions, same shape with 2 in the last axis."""
+    [batch, N, obs_dim] → actions, same shape with 2 in the last axis. With a Lloyd prior (``prior`` per m),
+    tanh(μ(o_i) + prior · o_i[centroid:centroid + 2]), the offset to the buoy's local centroid."""
 
-    def __init__(self, net: nn.Sequential):
+    def __init__(self, net: nn.Sequential, prior: float = 0.0, centroid: int = 0):
         super().__init__()
         self.net = net
+        self.prior, self.centroid = float(prior), int(centroid)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return torch.tanh(self.net(obs))
+        pre = self.net(obs)
+        if self.prior != 0.0:
+            pre = pre + self.prior * obs[..., self.centroid:self.centroid + 2]
+        return torch.tanh(pre)
 
 
 class FleetMessagePolicy(nn.Module):

@@ -45,9 +45,15 @@ class SharedActor(nn.Module):
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: int, symmetry: str = "none",
                  columns: list[str] | None = None, hops: int = 0, sensors: SensorsConfig | None = None,
-                 layers: int = 2):
+                 layers: int = 2, lloyd_prior: float = 0.0):
         super().__init__()
         self.hops = hops
+        self.prior, self.centroid = lloyd_prior, 0  # μ(o) = f(o) + prior · o[centroid_dx, centroid_dy]
+        if lloyd_prior:
+            if "centroid_dx" not in (columns or []):
+                raise ValueError("a Lloyd prior steers toward the local centroid: the observation needs its columns "
+                                 "(sensors.centroid)")
+            self.centroid = columns.index("centroid_dx")  # centroid_dy follows it (``sensors.columns``)
         if hops:
             sensors = sensors or SensorsConfig()
             self.net = MessageActor(obs_dim, act_dim, hidden, hops, columns or [], sensors.neighbours,
@@ -60,7 +66,8 @@ class SharedActor(nn.Module):
     def of(cls, obs_dim: int, act_dim: int, cfg: SharedLearnerConfig, columns: list[str] | None = None,
            sensors: SensorsConfig | None = None):
         """The actor of a learner's configuration: the one place its network is read from ``general.learner``."""
-        return cls(obs_dim, act_dim, cfg.hidden, cfg.symmetry, columns, cfg.hops, sensors, cfg.layers)
+        return cls(obs_dim, act_dim, cfg.hidden, cfg.symmetry, columns, cfg.hops, sensors, cfg.layers,
+                   cfg.lloyd_prior)
 
     @classmethod
     def from_checkpoint(cls, saved: dict):
@@ -81,9 +88,18 @@ class SharedActor(nn.Module):
                   and k[len(prefix):-len(".weight")].isdigit()]
         return int(weights[prefix + "0.weight"].shape[0]), len(linear) - 1
 
+    def steer(self, obs: torch.Tensor, pre: torch.Tensor) -> torch.Tensor:
+        """The action of the network's pre-tanh output ``pre`` [..., 2] for ``obs`` [..., obs_dim]: tanh(pre), with
+        a Lloyd prior tanh(pre + prior · the offset to the local centroid)."""
+        if self.prior:
+            pre = pre + self.prior * obs[..., self.centroid:self.centroid + 2]
+        return torch.tanh(pre)
+
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(action, the network's pre-tanh output: what the actor's regulariser keeps small, so that with a Lloyd
+        prior the actor departs from Lloyd's law only where that pays)."""
         pre = self.net(obs)
-        return torch.tanh(pre), pre
+        return self.steer(obs, pre), pre
 
     def fleet(self, obs: torch.Tensor, pos: torch.Tensor, live: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(action, pre-tanh) [B, N, act_dim] of padded fleets: obs [B, N, obs_dim], pos [B, N, 2], live [B, N];
@@ -94,7 +110,7 @@ class SharedActor(nn.Module):
             mine = self.net(obs[live])  # [L, act_dim]
             pre = mine.new_zeros(live.shape + mine.shape[-1:])
             pre[live] = mine
-        return torch.tanh(pre), pre
+        return self.steer(obs, pre) * live[..., None] if self.prior else torch.tanh(pre), pre
 
 
 Rows = tuple[torch.Tensor, torch.Tensor]  # (fleet b, buoy i) index tensors [L]: the buoys a pass scores

@@ -2,11 +2,11 @@
 
 The world has no preferred direction: turn a lake, its buoys and its current by 90°, or mirror them, and the best
 push of every buoy turns (or mirrors) with them. A buoy's sensors (``sensors.columns``) see such a turn as a
-signed permutation of their columns: its velocity and its neighbours' offsets are vectors whose components swap
-and change sign, the heard-masks stay, the shore rays (and the uncovered-water rays) trade places, for a fan
-of rays that is a multiple of four, and the cells of the local raster trade places as the square turns. So the 8
-elements g of the dihedral group D4 (the four quarter turns, each with and without a mirror) act on an
-observation o as g·o and on an action a as g·a, both exactly.
+signed permutation of their columns: its velocity, its neighbours' offsets and its local centroid's are vectors
+whose components swap and change sign, the heard-masks stay, the shore rays (and the uncovered-water rays) trade
+places, for a fan of rays that is a multiple of four, and the cells of the local raster trade places as the square
+turns. So the 8 elements g of the dihedral group D4 (the four quarter turns, each with and without a mirror) act
+on an observation o as g·o and on an action a as g·a, both exactly.
 
 A network f need not learn this: ``CompassSymmetric`` averages it over the group, f̄(o) = 1/8 Σ_g g⁻¹ f(g·o),
 which is equivariant by construction (f̄(g·o) = g f̄(o)). Its outputs are pre-tanh actions; g acts on an action
@@ -52,7 +52,7 @@ def _signed_permutation(columns: list[str], g: np.ndarray) -> tuple[np.ndarray, 
     for name in columns:
         if name == "vx":
             vector("vx", "vy")
-        elif m := re.fullmatch(r"(neighbour\d+)_dx", name):
+        elif m := re.fullmatch(r"(neighbour\d+|centroid)_dx", name):
             vector(name, f"{m[1]}_dy")
         elif m := re.fullmatch(r"(\w+)_\d+deg", name):
             rays.setdefault(m[1], []).append(name)

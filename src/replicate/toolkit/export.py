@@ -75,7 +75,8 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
                               "train it again with `replicate train-general`") from None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        module = torch.jit.script((FleetMessagePolicy if actor.hops else FleetPolicy)(actor.net.eval()))
+        module = torch.jit.script(FleetMessagePolicy(actor.net.eval()) if actor.hops else
+                                  FleetPolicy(actor.net.eval(), actor.prior, actor.centroid))
     metadata = {
         "format": "buoy-swarm-coverage general policy v1",
         "n_agents": "any",
@@ -90,6 +91,9 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
     }
     if saved.get("symmetry", "none") != "none":  # an actor averaged over the compass's turns (``symmetry``)
         metadata["symmetry"] = saved["symmetry"]
+    if actor.prior:  # Lloyd's law toward the local centroid, which the network corrects
+        metadata["lloyd_prior"] = {"gain_per_sim_m": actor.prior, "columns": ["centroid_dx", "centroid_dy"],
+                                   "action": "tanh(network(obs) + gain_per_sim_m * (centroid_dx, centroid_dy))"}
     if actor.hops:  # the buoys' positions beside their observations (``learn.messages``)
         metadata["messages"] = {
             "hops": actor.hops, "heard": f"the {sensors.neighbours} nearest buoys within {sensors.comm_range} m",

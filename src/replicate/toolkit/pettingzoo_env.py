@@ -201,15 +201,19 @@ def reachable_bounds(core: CoverageEnv) -> tuple[np.ndarray, np.ndarray]:
 def local_bounds(core: CoverageEnv) -> tuple[np.ndarray, np.ndarray]:
     """Bounds of the local observation (``sensors.columns``): velocity within ±v_max (over the ground, plus the
     current's top speed), a heard buoy within the communication range, its mask in [0, 1], a shore distance in
-    [0, ray range], a share of uncovered water in [0, 1], a cell of the local raster in [0, 1]."""
+    [0, ray range], a share of uncovered water in [0, 1], a cell of the local raster in [0, 1], the local centroid's
+    offset within the ray range."""
     sc = core.sensor_config
     v_max = top_speed(core)
     if sc.velocity == "ground" and core.current is not None:
         v_max += core.current.max_speed()
     k = sc.neighbours
     shares = (sc.rays if sc.uncovered else 0) + len(local_map.RASTER_CHANNELS) * sc.raster**2
-    lo = np.concatenate([[-v_max] * 2, [-sc.comm_range] * 2 * k, [0.0] * k, [0.0] * sc.rays, [0.0] * shares])
-    hi = np.concatenate([[v_max] * 2, [sc.comm_range] * 2 * k, [1.0] * k, [sc.ray_range] * sc.rays, [1.0] * shares])
+    reach = [sc.ray_range] * (2 if sc.centroid else 0)
+    lo = np.concatenate([[-v_max] * 2, [-sc.comm_range] * 2 * k, [0.0] * k, [0.0] * sc.rays, [0.0] * shares,
+                         np.negative(reach)])
+    hi = np.concatenate([[v_max] * 2, [sc.comm_range] * 2 * k, [1.0] * k, [sc.ray_range] * sc.rays, [1.0] * shares,
+                         reach])
     return lo - 1e-6, hi + 1e-6
 
 

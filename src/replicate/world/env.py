@@ -29,7 +29,7 @@ def observation_columns(observation: str, sensors_config: SensorsConfig | None =
     """The names of an observation's columns, in order (the exported policy's layout)."""
     if observation == "local":
         sc = sensors_config or SensorsConfig()
-        return sensors.columns(sc.neighbours, sc.rays, bool(sc.uncovered), sc.raster)
+        return sensors.columns(sc.neighbours, sc.rays, bool(sc.uncovered), sc.raster, sc.centroid)
     return ["x", "y"] if observation == "position" else ["x", "y", "vx", "vy"]
 
 
@@ -150,20 +150,19 @@ class CoverageEnv:
         self.n_agents = world.n_agents
         self.reward_kind = reward
         self.sw, self.cr = sw, cr
-        self.observation = observation
-        self.union_credit = union_credit
-        self.pay = pay
+        self.observation, self.union_credit, self.pay = observation, union_credit, pay
         self.sensor_config = sensors_config or SensorsConfig()
         columns = observation_columns(observation, self.sensor_config)
         self.obs_dim = len(columns)
         self.shore_rays = sensors.shore_rays(columns)
         if pay.shore_penalty and not self.shore_rays:
             raise ValueError("a shore penalty needs the shore rays of the local observation (observation='local')")
-        if observation == "local":  # the shore's edges and the rays' directions, once
+        self.raster = self.centroid = None  # the local raster's (water mask, cells' offsets), the centroid sensor
+        if observation == "local":  # the shore's edges, the rays' directions and the maps ``SensorsConfig`` asks for
             self.shore_edges = sensors.ShoreGrid(sensors.shore_segments(region.polygon))
             self.ray_directions = sensors.ray_directions(self.sensor_config.rays)
-        # the water mask and the cells' offsets of the local raster, with ``SensorsConfig.raster``
-        self.raster = local_map.for_sensors(region.polygon, self.sensor_config) if observation == "local" else None
+            self.raster = local_map.for_sensors(region.polygon, self.sensor_config)
+            self.centroid = local_map.centroid_for_sensors(region.polygon, self.sensor_config)
         # first: it refuses a region too narrow, naming it
         self.patch = start_patch(region.polygon, world.start_patch, name=region.name, scale=region.scale)
         self._geometry = None  # the fast path's tables: built below for a reward, on first use without one
@@ -265,16 +264,14 @@ class CoverageEnv:
         return self.live(self.pos)
 
     def observe(self) -> np.ndarray:
-        """Own position (paper), own position and velocity, or the local sensors (``sensors.local_observation``:
-        velocity, the buoys heard, the shore's distance along rays and, with ``SensorsConfig.uncovered``, the
-        uncovered water along them, with ``SensorsConfig.raster`` the map around the buoy). → [E, N, obs_dim]
-        float32."""
+        """Own position (paper), own position and velocity, or the local sensors that ``SensorsConfig`` names
+        (``sensors.local_observation``). → [E, N, obs_dim] float32."""
         if self.observation == "local":
             sc = self.sensor_config
             vel = self.ground_vel if sc.velocity == "ground" else self.vel
             return sensors.local_observation(self.pos, vel, self.shore_edges, self.ray_directions,
                                              sc.neighbours, sc.comm_range, sc.ray_range, self.alive,
-                                             sc.uncovered, self.coverage.radius, self.raster)
+                                             sc.uncovered, self.coverage.radius, self.raster, self.centroid)
         obs = self.pos if self.observation == "position" else np.concatenate([self.pos, self.vel], axis=-1)
         return obs.astype(np.float32)
 

@@ -6,6 +6,9 @@ The lake's water is read off a fine grid of the lake (``WaterMask``), exactly: t
 no shore edge passes through, the outline itself a point in a cell the shore may cross. The cover is a compiled
 loop over the buoys each buoy hears (``heard_cover``), which the uncovered-water sensor (``sensors.uncovered_water``)
 reads too.
+
+The same grid gives the centroid sensor (``LocalCentroid``): the offset to the centroid of the water around the
+buoy that is nearer to it than to the buoys it hears, where Lloyd's law would steer it on what it senses now.
 """
 
 from __future__ import annotations
@@ -113,9 +116,82 @@ def local_raster(pos: np.ndarray, water: WaterMask, offsets: np.ndarray, radius:
     return np.concatenate([wet, heard_cover(pos, offsets, radius, comm_range, alive)], axis=-1)
 
 
+def centroid_for_sensors(water: Polygon, config) -> LocalCentroid | None:
+    """The centroid sensor of ``config`` (a ``core.sections.SensorsConfig``) in ``water``, or None without it."""
+    return LocalCentroid(water, config.ray_range) if config.centroid else None
+
+
 def for_sensors(water: Polygon, config) -> tuple[WaterMask, np.ndarray] | None:
     """What ``sensors.local_observation`` needs for the raster of ``config`` (a ``core.sections.SensorsConfig``)
     in ``water``: (its water mask, its cells' offsets), or None without a raster."""
     if not config.raster:
         return None
     return WaterMask.for_raster(water, config.raster, config.ray_range), raster_offsets(config.raster, config.ray_range)
+
+
+# ---- the local centroid ---------------------------------------------------------------------------------------
+CENTROID_STEPS = 16  # the centroid sensor's points lie ray_range / 16 apart: 797 of them within its reach
+
+
+@numba.njit(cache=True)
+def _centroid(pos, live, rel, heard, offsets, wet, x0, y0, cell, out):  # pragma: no cover - compiled
+    """``LocalCentroid``'s loop: the mean offset of the points around each buoy that are water and nearer to it
+    than to every buoy it hears."""
+    e, n, k_count = heard.shape
+    ny, nx = wet.shape
+    for b in range(e):
+        for i in range(n):
+            out[b, i, 0], out[b, i, 1] = 0.0, 0.0
+            if not live[b, i]:
+                continue
+            sx, sy, count = 0.0, 0.0, 0
+            for c in range(offsets.shape[0]):
+                ox, oy = offsets[c, 0], offsets[c, 1]
+                gx = int(np.floor((pos[b, i, 0] + ox - x0) / cell))
+                gy = int(np.floor((pos[b, i, 1] + oy - y0) / cell))
+                if gx < 0 or gx >= nx or gy < 0 or gy >= ny or not wet[gy, gx]:
+                    continue
+                own = ox * ox + oy * oy
+                mine = True
+                for k in range(k_count):
+                    if heard[b, i, k] > 0:
+                        dx, dy = ox - rel[b, i, k, 0], oy - rel[b, i, k, 1]
+                        if dx * dx + dy * dy < own:
+                            mine = False
+                            break
+                if mine:
+                    sx, sy, count = sx + ox, sy + oy, count + 1
+            if count > 0:
+                out[b, i, 0], out[b, i, 1] = sx / count, sy / count
+
+
+class LocalCentroid:
+    """Where Lloyd's law would steer a buoy that knows only what it senses now: the offset from the buoy to the
+    centroid of the water within ``reach`` (its shore sensor's range) that is nearer to it than to every buoy it
+    hears — its cell of a decentralised Lloyd (``compare.decentralised``) with no memory of where it has been, so
+    that a buoy at the front of a fleet sees the free water ahead and not the water it left behind.
+
+    The water is read at points ``reach`` / ``CENTROID_STEPS`` apart within the reach, each as the centre of its
+    cell of a fine grid of the lake (a quarter of that spacing, coarser only where the lake would need more than
+    ``most`` cells: the shore is known to within a cell). A buoy whose cell holds no such point, or that is out of
+    service, reads (0, 0)."""
+
+    def __init__(self, water: Polygon, reach: float, most: int = 4_000_000):
+        spacing = reach / CENTROID_STEPS
+        axis = np.arange(-CENTROID_STEPS, CENTROID_STEPS + 1) * spacing
+        ox, oy = np.meshgrid(axis, axis, indexing="ij")
+        near = ox**2 + oy**2 <= reach**2 * (1 + 1e-9)
+        self.offsets = np.stack([ox[near], oy[near]], axis=1)  # [P, 2]
+        minx, miny, maxx, maxy = water.bounds
+        self.mask = WaterMask(water, max(spacing / 4, np.sqrt((maxx - minx) * (maxy - miny) / most)))
+
+    def __call__(self, pos: np.ndarray, rel: np.ndarray, heard: np.ndarray,
+                 alive: np.ndarray | None = None) -> np.ndarray:
+        """pos [E, N, 2]; the buoys each hears (``sensors.neighbours``): rel [E, N, k, 2] (other − self) and heard
+        [E, N, k] → the offsets to the centroids, m, [E, N, 2]."""
+        live = np.ones(pos.shape[:2], dtype=np.bool_) if alive is None else np.ascontiguousarray(alive, dtype=np.bool_)
+        out = np.empty(pos.shape[:2] + (2,))
+        m = self.mask
+        _centroid(np.ascontiguousarray(pos, dtype=np.float64), live, np.ascontiguousarray(rel, dtype=np.float64),
+                  np.ascontiguousarray(heard, dtype=np.float64), self.offsets, m.wet, m.x0, m.y0, m.cell, out)
+        return out

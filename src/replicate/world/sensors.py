@@ -14,7 +14,14 @@ import shapely
 from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
-from replicate.world.local_map import RASTER_CHANNELS, WaterMask, heard_cover, local_raster, raster_cells
+from replicate.world.local_map import (
+    RASTER_CHANNELS,
+    LocalCentroid,
+    WaterMask,
+    heard_cover,
+    local_raster,
+    raster_cells,
+)
 
 
 def own_velocity(vel: np.ndarray) -> np.ndarray:
@@ -212,21 +219,23 @@ def uncovered_water(pos: np.ndarray, shore: np.ndarray, directions: np.ndarray, 
     return (water & (covered == 0.0)).sum(-1) / len(r)
 
 
-def columns(k: int, rays: int, uncovered: bool = False, raster: int = 0) -> list[str]:
+def columns(k: int, rays: int, uncovered: bool = False, raster: int = 0, centroid: bool = False) -> list[str]:
     """Names of ``local_observation``'s columns, in order (``uncovered``: with ``uncovered_water``'s; ``raster``:
-    with ``local_raster``'s, ``raster_CHANNEL_A_B`` for the cell A east and B north of the buoy)."""
+    with ``local_raster``'s, ``raster_CHANNEL_A_B`` for the cell A east and B north of the buoy; ``centroid``: with
+    the local centroid's offset, last)."""
     compass = [round(360 * r / rays) for r in range(rays)]
     return (["vx", "vy"] + [f"neighbour{j}_{c}" for j in range(k) for c in ("dx", "dy")]
             + [f"neighbour{j}_heard" for j in range(k)] + [f"shore_{d}deg" for d in compass]
             + ([f"uncovered_{d}deg" for d in compass] if uncovered else [])
-            + [f"raster_{ch}_{a}_{b}" for ch in RASTER_CHANNELS for a, b in raster_cells(raster)])
+            + [f"raster_{ch}_{a}_{b}" for ch in RASTER_CHANNELS for a, b in raster_cells(raster)]
+            + (["centroid_dx", "centroid_dy"] if centroid else []))
 
 
 def describe(config) -> list[dict]:
     """Each sensor of ``local_observation`` as the exported policy's metadata lists it: its function, its columns,
     its settings (``config``: a ``core.sections.SensorsConfig``)."""
     k, rays = config.neighbours, config.rays
-    names = columns(k, rays, bool(config.uncovered), config.raster)
+    names = columns(k, rays, bool(config.uncovered), config.raster, config.centroid)
     described = [
         {"sensor": "own_velocity", "columns": names[:2], "shape": "[E, N, 2]", "units": "m/s",
          "frame": "over the ground (GPS)" if config.velocity == "ground" else "through the water (log)"},
@@ -251,6 +260,11 @@ def describe(config) -> list[dict]:
                           "units": "1 or 0 at each cell's centre: water (from the lake's outline); within the coverage "
                                    "range of another buoy heard",
                           "cells_order": "raster_CHANNEL_A_B: A cells east and B north of the buoy"})
+    if config.centroid:
+        described.append({"sensor": "local_centroid", "columns": names[-2:], "shape": "[E, N, 2]",
+                          "reach_m": config.ray_range, "comm_range_m": config.comm_range,
+                          "units": "m, relative to the buoy: the centroid of the water within reach_m nearer to the "
+                                   "buoy than to the buoys it hears (0 with none)"})
     return described
 
 
@@ -258,10 +272,12 @@ def local_observation(pos: np.ndarray, vel: np.ndarray, segments: np.ndarray | S
                       k: int,
                       comm_range: float, ray_range: float, alive: np.ndarray | None = None,
                       uncovered: tuple[float, ...] = (), radius: float = 0.0,
-                      raster: tuple[WaterMask, np.ndarray] | None = None) -> np.ndarray:
+                      raster: tuple[WaterMask, np.ndarray] | None = None,
+                      centroid: LocalCentroid | None = None) -> np.ndarray:
     """Every sensor of every buoy, concatenated in the order of ``columns``: [E, N, 2 + 3k + rays] float32, and
     ``rays`` more with ``uncovered`` (the radii of ``uncovered_water``'s points; ``radius``: the coverage range),
-    and 2C more with ``raster`` (``local_raster``'s water mask and cell offsets [C, 2])."""
+    2C more with ``raster`` (``local_raster``'s water mask and cell offsets [C, 2]) and 2 more with ``centroid``
+    (the local centroid's sensor of the lake, reading the buoys each hears)."""
     rel, mask = neighbours(pos, k, comm_range, alive)
     e, n = pos.shape[:2]
     shore = shore_distances(pos, segments, directions, ray_range)
@@ -270,6 +286,8 @@ def local_observation(pos: np.ndarray, vel: np.ndarray, segments: np.ndarray | S
         parts.append(uncovered_water(pos, shore, directions, uncovered, radius, comm_range, alive))
     if raster is not None:
         parts.append(local_raster(pos, *raster, radius, comm_range, alive))
+    if centroid is not None:
+        parts.append(centroid(pos, rel, mask, alive))
     return np.concatenate(parts, axis=-1).astype(np.float32)
 
 
