@@ -122,7 +122,7 @@ class SensorsConfig:
     velocity: Literal["water", "ground"] = "water"  # through the water (a log) or over the ground (GPS)
     uncovered: tuple[Num, ...] = ()  # m: radii of ``uncovered_water``'s points along each ray; () = no such sensor
     raster: Annotated[Int, In(0, 31)] = 0  # cells a side of ``local_raster``'s square of half-side ray_range; 0 = none
-    centroid: bool = False  # ``local_map.local_centroid``: the offset to the centroid of the water within ray_range
+    centroid: bool = False  # ``local_map.LocalCentroid``: the offset to the centroid of the water within ray_range
     # nearer to the buoy than to any buoy it hears (its cell of decentralised Lloyd, memoryless)
     # Values added after general runs were trained: at their default they are left out of a run's identity
     # (``runs.general_identity``), so adding one keeps the finished runs valid.

@@ -41,7 +41,8 @@ class SharedActor(nn.Module):
     the group's turns of the observation, and the policy turns with the world; with a local raster among the
     columns, μ reads it through a small CNN (``networks.observation_net``). With ``hops`` ≥ 1, μ is a
     ``messages.MessageActor`` over the buoys each hears (``sensors``: its K nearest within the range), which
-    reads whole fleets: ``fleet``."""
+    reads whole fleets: ``fleet``. With ``lloyd_prior`` g, a = tanh(μ(o_i) + g · (c_i − p_i)), c_i − p_i the offset
+    to the buoy's local centroid (``local_map.LocalCentroid``): Lloyd's law, which the network corrects."""
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: int, symmetry: str = "none",
                  columns: list[str] | None = None, hops: int = 0, sensors: SensorsConfig | None = None,
