@@ -395,3 +395,31 @@ def test_channel_world_is_the_rectangle_at_the_papers_density_trained_for_its_ev
     assert trainer.loop.memories[0].size == 2 * 8 * 10 + 8 * long
     assert [n for _, n in baseline_worlds(params, gc)][-1] == 20
     assert len(baseline_worlds(params, dataclasses.replace(gc, channel_fleet=0))) == 2
+
+
+def test_fine_tuning_keeps_the_policy_files_lloyd_prior(params, tmp_path):
+    """`replicate cover --finetune` trains a policy with a Lloyd prior as it was exported, prior included (the
+    file's gain, not params.yaml's 0): with too few transitions to update, the kept actor is the starting one and
+    its exported file acts as the original does."""
+    import sys
+
+    from replicate.learn.policy import load_policy
+    from replicate.toolkit.cover import finetuned
+    from replicate.world.regions import box_region
+
+    from ..conftest import ROOT
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from lloyd_prior import prior_alone
+
+    small = dataclasses.replace(params, general=dataclasses.replace(params.general, n_envs=4, learning_starts=10**6))
+    policy = prior_alone(small, 10.0, tmp_path / "prior")[0]
+    module, meta = load_policy(policy)
+    region = box_region("square", 3.0, 3.0)
+    finetuned(policy, module, meta, small, region, 10, 4, 0, tmp_path / "tuned", False)
+    again, again_meta = load_policy(tmp_path / "tuned" / "policy.pt")
+    assert again_meta["lloyd_prior"]["gain_per_sim_m"] == 10.0
+    obs = torch.randn(9, len(meta["observation_layout"]), generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        torch.testing.assert_close(again(obs), module(obs))
+        assert (module(obs) - torch.tanh(10.0 * obs[:, -2:])).abs().max() < 1e-6

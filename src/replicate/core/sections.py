@@ -123,7 +123,7 @@ class SensorsConfig:
     uncovered: tuple[Num, ...] = ()  # m: radii of ``uncovered_water``'s points along each ray; () = no such sensor
     raster: Annotated[Int, In(0, 31)] = 0  # cells a side of ``local_raster``'s square of half-side ray_range; 0 = none
     centroid: bool = False  # ``local_map.LocalCentroid``: the offset to the centroid of the water within ray_range
-    # nearer to the buoy than to any buoy it hears (its cell of decentralised Lloyd, memoryless)
+    # nearer to the buoy than to the ``neighbours`` it hears (its cell of decentralised Lloyd, memoryless)
     # Values added after general runs were trained: at their default they are left out of a run's identity
     # (``runs.general_identity``), so adding one keeps the finished runs valid.
     OPTIONAL: ClassVar[tuple[str, ...]] = ("uncovered", "raster", "centroid")
@@ -230,7 +230,7 @@ class SharedLearnerConfig:
     # (``learn.messages``); 0: the actor reads its own sensors only
     average: Annotated[Num, In(0, 1, open_hi=True)] = 0.0  # the validated and deployed actor: a running average of
     # the trained actor's weights, θ̄ ← θ̄ + average·(θ − θ̄) at every update (Polyak averaging); 0: the trained actor
-    lloyd_prior: NonNegative = 0.0  # per m: the actor's pre-tanh action is the network's plus this gain × the offset
+    lloyd_prior: NonNegative = 0.0  # per simulation metre: the actor's pre-tanh action is the network's plus this gain × the offset
     # to the buoy's local centroid (``sensors.centroid``): Lloyd's law as the prior the network corrects (residual
     # policy learning); 0: the network alone
     # left out of a run's identity at their default

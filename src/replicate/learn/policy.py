@@ -54,6 +54,8 @@ class FleetPolicy(nn.Module):
     def __init__(self, net: nn.Sequential, prior: float = 0.0, centroid: int = 0):
         super().__init__()
         self.net = net
+        if prior and centroid < 1:
+            raise ValueError("a Lloyd prior reads the centroid's columns: give their index (centroid_dx's)")
         self.prior, self.centroid = float(prior), int(centroid)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:

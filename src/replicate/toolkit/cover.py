@@ -127,14 +127,15 @@ def finetuned(policy: Path, module, meta: dict, params: Params, region, steps: i
               out: Path, progress: bool) -> dict:
     """Train the general policy ``policy`` (``module``, ``meta``) on this one lake for ``episodes`` (rounded down to
     ``general.n_envs``) from its own weights, sensors and width, into ``out/finetune``, and export the kept actor
-    to ``out/policy.pt`` → the run's summary."""
+    to ``out/policy.pt`` → the run's summary. Its Lloyd prior, if it has one, is the file's, not ``params``'."""
 
     gc, weights = params.general, dict(module.state_dict())
     try:
         symmetry = meta.get("symmetry", "none")  # a symmetric actor's MLP sits inside its average
         hidden, layers = SharedActor.shape(weights, symmetry)
         learner = dataclasses.replace(gc.learner, hidden=hidden, layers=layers, symmetry=symmetry,
-                                      imitation="none", imitation_until=IMITATION_UNTIL)  # no teacher here
+                                      imitation="none", imitation_until=IMITATION_UNTIL,  # no teacher here
+                                      lloyd_prior=meta.get("lloyd_prior", {}).get("gain_per_sim_m", 0.0))
         gc = dataclasses.replace(gc, episodes=episodes - episodes % gc.n_envs, episode_length=steps,
                                  grown_horizon=False,  # ``steps`` is this lake's T already
                                  sensors=SensorsConfig(**meta["sensor_config"]), learner=learner)

@@ -7,8 +7,9 @@ no shore edge passes through, the outline itself a point in a cell the shore may
 loop over the buoys each buoy hears (``heard_cover``), which the uncovered-water sensor (``sensors.uncovered_water``)
 reads too.
 
-The same grid gives the centroid sensor (``LocalCentroid``): the offset to the centroid of the water around the
-buoy that is nearer to it than to the buoys it hears, where Lloyd's law would steer it on what it senses now.
+A grid of the same kind, read at its cells' centres only, gives the centroid sensor (``LocalCentroid``): the offset
+to the centroid of the water around the buoy that is nearer to it than to the buoys it hears, where Lloyd's law
+would steer it on what it senses now.
 """
 
 from __future__ import annotations
@@ -168,7 +169,7 @@ def _centroid(pos, live, rel, heard, offsets, wet, x0, y0, cell, out):  # pragma
 class LocalCentroid:
     """Where Lloyd's law would steer a buoy that knows only what it senses now: the offset from the buoy to the
     centroid of the water within ``reach`` (its shore sensor's range) that is nearer to it than to every buoy it
-    hears — its cell of a decentralised Lloyd (``compare.decentralised``) with no memory of where it has been, so
+    lists (``sensors.neighbours``: its K nearest heard) — its cell of a decentralised Lloyd (``compare.decentralised``) with no memory of where it has been, so
     that a buoy at the front of a fleet sees the free water ahead and not the water it left behind.
 
     The water is read at points ``reach`` / ``CENTROID_STEPS`` apart within the reach, each as the centre of its

@@ -264,7 +264,7 @@ def describe(config) -> list[dict]:
         described.append({"sensor": "local_centroid", "columns": names[-2:], "shape": "[E, N, 2]",
                           "reach_m": config.ray_range, "comm_range_m": config.comm_range,
                           "units": "m, relative to the buoy: the centroid of the water within reach_m nearer to the "
-                                   "buoy than to the buoys it hears (0 with none)"})
+                                   "buoy than to the buoys the neighbours sensor lists (0 with none)"})
     return described
 
 

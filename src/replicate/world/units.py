@@ -176,6 +176,9 @@ def contract(world: WorldConfig, coverage: CoverageConfig, sensors: SensorsConfi
         elif c.startswith("shore_"):
             text = "distance to the shore along this compass direction (east = 0 deg, counter-clockwise), " \
                    "capped at shore_range (no shore within reach reads shore_range)"
+        elif c.startswith("centroid_"):
+            text = "offset to the centroid of the water within shore_range nearer to the buoy than to the buoys it " \
+                   "lists (east, north)"
         elif unit == LENGTH:
             text = "a neighbour's position relative to the buoy (east, north)"
         else:
