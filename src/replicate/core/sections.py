@@ -230,9 +230,9 @@ class SharedLearnerConfig:
     # (``learn.messages``); 0: the actor reads its own sensors only
     average: Annotated[Num, In(0, 1, open_hi=True)] = 0.0  # the validated and deployed actor: a running average of
     # the trained actor's weights, θ̄ ← θ̄ + average·(θ − θ̄) at every update (Polyak averaging); 0: the trained actor
-    lloyd_prior: NonNegative = 0.0  # per simulation metre: the actor's pre-tanh action is the network's plus this gain × the offset
-    # to the buoy's local centroid (``sensors.centroid``): Lloyd's law as the prior the network corrects (residual
-    # policy learning); 0: the network alone
+    lloyd_prior: NonNegative = 0.0  # per simulation metre: the actor's pre-tanh action is the network's plus this
+    # gain × the offset to the buoy's local centroid (``sensors.centroid``): Lloyd's law as the prior the network
+    # corrects (residual policy learning); 0: the network alone
     # left out of a run's identity at their default
     OPTIONAL: ClassVar[tuple[str, ...]] = ("layers", "symmetry", "imitation", "imitation_weight",
                                            "imitation_until", "hops", "average", "lloyd_prior")

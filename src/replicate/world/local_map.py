@@ -169,8 +169,9 @@ def _centroid(pos, live, rel, heard, offsets, wet, x0, y0, cell, out):  # pragma
 class LocalCentroid:
     """Where Lloyd's law would steer a buoy that knows only what it senses now: the offset from the buoy to the
     centroid of the water within ``reach`` (its shore sensor's range) that is nearer to it than to every buoy it
-    lists (``sensors.neighbours``: its K nearest heard) — its cell of a decentralised Lloyd (``compare.decentralised``) with no memory of where it has been, so
-    that a buoy at the front of a fleet sees the free water ahead and not the water it left behind.
+    lists (``sensors.neighbours``: its K nearest heard) — its cell of a decentralised Lloyd
+    (``compare.decentralised``) with no memory of where it has been, so that a buoy at the front of a fleet sees the
+    free water ahead and not the water it left behind.
 
     The water is read at points ``reach`` / ``CENTROID_STEPS`` apart within the reach, each as the centre of its
     cell of a fine grid of the lake (a quarter of that spacing, coarser only where the lake would need more than
