@@ -81,6 +81,9 @@ def write(tmp_path, mutate):
          r"general.learner.lloyd_prior \(10.0\) steers toward the local centroid"),
         (lambda r: (r["general"]["learner"].update(lloyd_prior=10.0, hops=2),
                     r["general"]["sensors"].update(centroid=True)), "lloyd_prior is added to the MLP actor"),
+        (lambda r: r["general"]["learner"].update(lloyd_prior_fade=0.5),
+         r"general.learner.lloyd_prior_fade \(0.5\) fades the Lloyd prior, and lloyd_prior is 0"),
+        (lambda r: r["general"]["learner"].update(lloyd_prior_fade=1.0), "lloyd_prior_fade"),
     ],
 )
 def test_bad_params_are_refused(tmp_path, mutate, message):

@@ -423,3 +423,27 @@ def test_fine_tuning_keeps_the_policy_files_lloyd_prior(params, tmp_path):
     with torch.no_grad():
         torch.testing.assert_close(again(obs), module(obs))
         assert (module(obs) - torch.tanh(10.0 * obs[:, -2:])).abs().max() < 1e-6
+
+
+def test_a_fading_lloyd_prior_falls_to_0_and_only_the_network_alone_is_kept(params, tmp_path):
+    """``lloyd_prior_fade``: the prior's gain falls linearly to 0 over that share of the batches, in the actor and
+    its target alike; validation waits until it is 0, so the kept actor, its checkpoint and its exported file steer
+    by the network alone."""
+    from replicate.learn.schedules import prior_gain
+    from replicate.toolkit.export import export_general
+
+    cfg = tiny(params)
+    learner = dataclasses.replace(cfg.learner, lloyd_prior=10.0, lloyd_prior_fade=0.5)
+    assert [prior_gain(learner, p) for p in (0.0, 0.25, 0.5, 0.9)] == [10.0, 5.0, 0.0, 0.0]
+    assert learner.deployed_prior == 0.0 and cfg.learner.deployed_prior == cfg.learner.lloyd_prior
+    cfg = dataclasses.replace(cfg, learner=learner, sensors=dataclasses.replace(cfg.sensors, centroid=True))
+    trainer = GeneralTrainer(params, 7, tmp_path / "run", progress=False, config=cfg)
+    summary = trainer.run()
+    assert trainer.agent.actor.prior == trainer.agent.actor_target.prior == 0.0
+    lines = gzip.decompress((tmp_path / "run" / "curve.csv.gz").read_bytes()).decode().splitlines()
+    validated = [row.split(",")[1] for row in lines[1:] if row.split(",")[-1] not in ("", "nan")]
+    assert validated == ["32", "48"]  # 6 batches of 8 over 2 worlds: due after batches 2, 4, 6; gain 0 from 3 on
+    assert summary["selected_episode"] in (32, 48)
+    saved = torch.load(tmp_path / "run" / "actor.pt")
+    assert SharedActor.from_checkpoint(saved).prior == 0.0
+    assert "lloyd_prior" not in export_general(tmp_path / "run" / "actor.pt", tmp_path / "run" / "policy.pt")

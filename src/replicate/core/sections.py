@@ -233,9 +233,17 @@ class SharedLearnerConfig:
     lloyd_prior: NonNegative = 0.0  # per simulation metre: the actor's pre-tanh action is the network's plus this
     # gain × the offset to the buoy's local centroid (``sensors.centroid``): Lloyd's law as the prior the network
     # corrects (residual policy learning); 0: the network alone
+    lloyd_prior_fade: Annotated[Num, In(0, 1, open_hi=True)] = 0.0  # the share of the training's batches over
+    # which the prior's gain falls linearly to 0: the actor validated, kept and deployed is then the network alone,
+    # the prior a guide of the early exploration; 0: the gain stays
     # left out of a run's identity at their default
     OPTIONAL: ClassVar[tuple[str, ...]] = ("layers", "symmetry", "imitation", "imitation_weight",
-                                           "imitation_until", "hops", "average", "lloyd_prior")
+                                           "imitation_until", "hops", "average", "lloyd_prior", "lloyd_prior_fade")
+
+    @property
+    def deployed_prior(self) -> float:
+        """The Lloyd prior's gain in the actor a training keeps: ``lloyd_prior``, or 0 where it fades."""
+        return 0.0 if self.lloyd_prior_fade else self.lloyd_prior
 
     @model_validator(mode="after")
     def check(self):
@@ -248,6 +256,9 @@ class SharedLearnerConfig:
         if self.hops and self.layers != 2:
             raise ConfigError("general.learner: hops (messages) have a network of their own (``learn.messages``); "
                               f"layers ({self.layers}) is the MLP actor's: set layers to 2 or hops to 0")
+        if self.lloyd_prior_fade and not self.lloyd_prior:
+            raise ConfigError(f"general.learner.lloyd_prior_fade ({self.lloyd_prior_fade}) fades the Lloyd prior, "
+                              "and lloyd_prior is 0: set lloyd_prior above 0 or lloyd_prior_fade to 0")
         if self.imitation != "before" and self.imitation_until != IMITATION_UNTIL:
             raise ConfigError(f"general.learner.imitation_until ({self.imitation_until}) is read by imitation "
                               f"'before' only, and imitation is {self.imitation!r}: set one or leave it at "

@@ -16,7 +16,8 @@ no more.
 
 The run keeps the actor that covered best on its validation starts (every named region and the channel from the
 corner, each world scattered, fixed seeds drawn from the run's seed; with ``general.learner.average``, the running
-average of the trained actor's weights is the one validated) and writes into its folder: ``actor.pt``
+average of the trained actor's weights is the one validated; with ``general.learner.lloyd_prior_fade``, only
+once the actor's Lloyd prior has faded to 0) and writes into its folder: ``actor.pt``
 (weights and the sensors it reads), ``curve.csv.gz`` (one row per batch), ``run.json``.
 """
 
@@ -105,16 +106,18 @@ class GeneralTrainer:
         gc = self.gc
         batches = gc.episodes // gc.n_envs
         t0, c0 = time.perf_counter(), time.process_time()
-        if self.initial_actor is not None:
+        if self.initial_actor is not None and self.agent.fade_prior(0.0):
             self.validate(0)  # the starting weights are the ones to beat
         for batch in progress_bar(self.progress, iterable=range(batches), desc="training", unit="batch"):
             sigma = self.loop.schedule(batch / batches)
+            settled = self.agent.fade_prior((batch + 1) / batches)  # a fading prior is 0 by the last batch; only an
+            # actor with the prior's deployed gain is validated and kept
             if self.teacher is not None and gc.learner.imitation == "before" and \
                     batch >= gc.learner.imitation_until * batches:
                 self.hand_over()
             world = self.worlds[batch % len(self.worlds)]
             row = self.play(world, sigma)
-            due = (batch + 1) % len(self.worlds) == 0 or batch == batches - 1
+            due = settled and ((batch + 1) % len(self.worlds) == 0 or batch == batches - 1)
             score = self.validate((batch + 1) * gc.n_envs) if due else math.nan
             self.rows.append([batch, (batch + 1) * gc.n_envs, world.region.name, world.n_agents, *row, sigma, score])
         return self.finish(time.perf_counter() - t0, time.process_time() - c0)

@@ -32,6 +32,7 @@ from replicate.core.sections import SensorsConfig, SharedLearnerConfig
 from replicate.learn.messages import MessageActor
 from replicate.learn.networks import mlp, observation_net
 from replicate.learn.replay import Batch
+from replicate.learn.schedules import prior_gain
 from replicate.learn.symmetry import symmetric
 
 
@@ -75,9 +76,11 @@ class SharedActor(nn.Module):
         """The actor of a general run's ``actor.pt`` (``general_train``), weights loaded: its learner's
         configuration as saved (files written before it was saved name only the width and the symmetry)."""
         learner = saved.get("learner") or {"hidden": saved["hidden"], "symmetry": saved.get("symmetry", "none")}
-        actor = cls.of(len(saved["columns"]), 2, SharedLearnerConfig(**learner), saved["columns"],
+        cfg = SharedLearnerConfig(**learner)
+        actor = cls.of(len(saved["columns"]), 2, cfg, saved["columns"],
                        SensorsConfig(**saved["sensors"]) if saved.get("sensors") else None)
         actor.load_state_dict(saved["actor"])
+        actor.prior = cfg.deployed_prior  # a faded prior is kept at 0 (``general_train`` validates no other)
         return actor
 
     @staticmethod
@@ -205,6 +208,15 @@ class SharedMADDPG:
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
         self.imitation = "alone" if cfg.imitation == "before" else cfg.imitation  # what the actor's loss is now
+
+    def fade_prior(self, progress: float) -> bool:
+        """The Lloyd prior's gain at this ``progress`` of the training (``schedules.prior_gain``), in the actor, its
+        target and its average alike. → whether it is the gain of the actor a training keeps (``deployed_prior``)."""
+        gain = prior_gain(self.cfg, progress)
+        for actor in (self.actor, self.actor_target, self.actor_average):
+            if actor is not None:
+                actor.prior = gain
+        return gain == self.cfg.deployed_prior
 
     def hand_over(self) -> None:
         """``imitation: before``: the imitation ends, the actor-critic alone trains the actor from now on (with the
