@@ -397,10 +397,11 @@ def test_channel_world_is_the_rectangle_at_the_papers_density_trained_for_its_ev
     assert len(baseline_worlds(params, dataclasses.replace(gc, channel_fleet=0))) == 2
 
 
-def test_fine_tuning_keeps_the_policy_files_lloyd_prior(params, tmp_path):
+@pytest.mark.parametrize("fade", [0.0, 0.5])
+def test_fine_tuning_keeps_the_policy_files_lloyd_prior(params, tmp_path, fade):
     """`replicate cover --finetune` trains a policy with a Lloyd prior as it was exported, prior included (the
-    file's gain, not params.yaml's 0): with too few transitions to update, the kept actor is the starting one and
-    its exported file acts as the original does."""
+    file's gain, not params.yaml's 0, and unfaded whatever params.yaml's ``lloyd_prior_fade``): with too few
+    transitions to update, the kept actor is the starting one and its exported file acts as the original does."""
     import sys
 
     from replicate.learn.policy import load_policy
@@ -414,6 +415,11 @@ def test_fine_tuning_keeps_the_policy_files_lloyd_prior(params, tmp_path):
 
     small = dataclasses.replace(params, general=dataclasses.replace(params.general, n_envs=4, learning_starts=10**6))
     policy = prior_alone(small, 10.0, tmp_path / "prior")[0]
+    if fade:  # params.yaml fades a prior of its own
+        gc = small.general
+        small = dataclasses.replace(small, general=dataclasses.replace(
+            gc, sensors=dataclasses.replace(gc.sensors, centroid=True),
+            learner=dataclasses.replace(gc.learner, lloyd_prior=3.0, lloyd_prior_fade=fade)))
     module, meta = load_policy(policy)
     region = box_region("square", 3.0, 3.0)
     finetuned(policy, module, meta, small, region, 10, 4, 0, tmp_path / "tuned", False)
@@ -438,7 +444,10 @@ def test_a_fading_lloyd_prior_falls_to_0_and_only_the_network_alone_is_kept(para
     assert learner.deployed_prior == 0.0 and cfg.learner.deployed_prior == cfg.learner.lloyd_prior
     cfg = dataclasses.replace(cfg, learner=learner, sensors=dataclasses.replace(cfg.sensors, centroid=True))
     trainer = GeneralTrainer(params, 7, tmp_path / "run", progress=False, config=cfg)
+    gains, play = [], trainer.play
+    trainer.play = lambda world, sigma: gains.append(trainer.agent.actor_target.prior) or play(world, sigma)
     summary = trainer.run()
+    assert gains == pytest.approx([10 * 2 / 3, 10 / 3, 0, 0, 0, 0])  # a batch plays with the gain of its end
     assert trainer.agent.actor.prior == trainer.agent.actor_target.prior == 0.0
     lines = gzip.decompress((tmp_path / "run" / "curve.csv.gz").read_bytes()).decode().splitlines()
     validated = [row.split(",")[1] for row in lines[1:] if row.split(",")[-1] not in ("", "nan")]

@@ -60,7 +60,8 @@ class GeneralTrainer:
         """``worlds`` [(region, N)] replace the training worlds of ``config`` (fine-tuning on one lake: its
         validation starts from the corner patch and scattered); ``actor``, a state dict of ``SharedActor``, starts
         the actor (its target and, with ``learner.average``, its average) from trained weights, validated before
-        the first batch so that the run keeps them unless training improves on them; ``teacher(env) → actions
+        the first batch so that the run keeps them unless training improves on them (unless its Lloyd prior
+        fades: only the faded actor is validated); ``teacher(env) → actions
         [E, N, 2]`` labels every state the learner visits, which ``general.learner.imitation`` needs."""
         self.params, self.gc, self.seed, self.out = params, config or params.general, seed, Path(out)
         self.progress = progress
@@ -110,8 +111,9 @@ class GeneralTrainer:
             self.validate(0)  # the starting weights are the ones to beat
         for batch in progress_bar(self.progress, iterable=range(batches), desc="training", unit="batch"):
             sigma = self.loop.schedule(batch / batches)
-            settled = self.agent.fade_prior((batch + 1) / batches)  # a fading prior is 0 by the last batch; only an
-            # actor with the prior's deployed gain is validated and kept
+            settled = self.agent.fade_prior((batch + 1) / batches)  # a batch plays with the gain of its end, so
+            # that a fading prior is 0 in the last batch whatever the share; only an actor with the prior's deployed
+            # gain is validated and kept
             if self.teacher is not None and gc.learner.imitation == "before" and \
                     batch >= gc.learner.imitation_until * batches:
                 self.hand_over()

@@ -1,8 +1,8 @@
 """Exploration and learning-rate schedules over a training's progress (0 at the first episode or batch, 1 at the
 last): σ falls linearly from ``noise_start`` to ``noise_end`` over the first ``noise_decay`` of training, the
-learning rates linearly from their configured values to ``lr_end`` × them at the end. The per-region and the
-general training read the same two lines. The general actor's Lloyd prior falls linearly to 0 over the first
-``lloyd_prior_fade`` of training where that is set.
+learning rates linearly from their configured values to ``lr_end`` × them at the end: the per-region and the
+general training read the same two functions. The general actor's Lloyd prior, a third, falls linearly to 0 over
+the first ``lloyd_prior_fade`` of training where that is set.
 """
 
 from __future__ import annotations

@@ -127,7 +127,8 @@ def finetuned(policy: Path, module, meta: dict, params: Params, region, steps: i
               out: Path, progress: bool) -> dict:
     """Train the general policy ``policy`` (``module``, ``meta``) on this one lake for ``episodes`` (rounded down to
     ``general.n_envs``) from its own weights, sensors and width, into ``out/finetune``, and export the kept actor
-    to ``out/policy.pt`` → the run's summary. Its Lloyd prior, if it has one, is the file's, not ``params``'."""
+    to ``out/policy.pt`` → the run's summary. Its Lloyd prior, if it has one, is the file's, not ``params``', and
+    does not fade."""
 
     gc, weights = params.general, dict(module.state_dict())
     try:
@@ -135,7 +136,8 @@ def finetuned(policy: Path, module, meta: dict, params: Params, region, steps: i
         hidden, layers = SharedActor.shape(weights, symmetry)
         learner = dataclasses.replace(gc.learner, hidden=hidden, layers=layers, symmetry=symmetry,
                                       imitation="none", imitation_until=IMITATION_UNTIL,  # no teacher here
-                                      lloyd_prior=meta.get("lloyd_prior", {}).get("gain_per_sim_m", 0.0))
+                                      lloyd_prior=meta.get("lloyd_prior", {}).get("gain_per_sim_m", 0.0),
+                                      lloyd_prior_fade=0.0)  # the file's prior as it is deployed, unfaded
         gc = dataclasses.replace(gc, episodes=episodes - episodes % gc.n_envs, episode_length=steps,
                                  grown_horizon=False,  # ``steps`` is this lake's T already
                                  sensors=SensorsConfig(**meta["sensor_config"]), learner=learner)
