@@ -60,8 +60,8 @@ class GeneralTrainer:
         """``worlds`` [(region, N)] replace the training worlds of ``config`` (fine-tuning on one lake: its
         validation starts from the corner patch and scattered); ``actor``, a state dict of ``SharedActor``, starts
         the actor (its target and, with ``learner.average``, its average) from trained weights, validated before
-        the first batch so that the run keeps them unless training improves on them (unless its Lloyd prior
-        fades: only the faded actor is validated); ``teacher(env) → actions
+        the first batch so that the run keeps them unless training improves on them (with a fading Lloyd prior
+        they are not: only the faded actor is validated); ``teacher(env) → actions
         [E, N, 2]`` labels every state the learner visits, which ``general.learner.imitation`` needs."""
         self.params, self.gc, self.seed, self.out = params, config or params.general, seed, Path(out)
         self.progress = progress
