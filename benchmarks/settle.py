@@ -1,0 +1,159 @@
+"""Where the learned policy's layout stops, and whether Lloyd's law settles it further: on the yardstick lakes.
+
+    python benchmarks/settle.py --seeds 1,2 --out FILE [--workers 2]
+        every cell of the yardstick (lake x fleet x start x event, the episodes of `replicate compare`) for the
+        standing baseline's seeds (yardstick/runs/general-sS/policy.pt): the policy alone; the policy, then
+        decentralised Lloyd (the buoys heard and the water sensed since the release, as the policy senses) for the
+        last share of the horizon (--shares); decentralised Lloyd alone; tuned Lloyd, the unit. Beside it the mean
+        coverage at each tenth of the horizon, as a share of the final, for the policy and for tuned Lloyd.
+        Prints each version's mean coverage / lloyd_tuned over the cells, per event and start; FILE keeps the rows.
+
+Run from the repository root with the project's environment (`make setup`)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import statistics
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from replicate.compare.evaluate import fleet_policy, read_general_policy, rollout
+from replicate.compare.rivals import general_baselines
+from replicate.compare.suite import suite_event
+from replicate.compare.yardstick import yardstick_cells, yardstick_lakes
+from replicate.core import artifacts
+from replicate.core.executor import map_jobs
+from replicate.core.params import load_params
+from replicate.core.sections import SensorsConfig
+from replicate.core.studies import StartsConfig
+from replicate.world import coverage
+from replicate.world.regions import at_density
+from replicate.world.scenario import general_evaluation_env, horizon
+
+BASELINE = "yardstick/runs/general-s{}/policy.pt"  # the standing baseline's seeds (train_yardstick)
+TENTHS = np.linspace(0.1, 1.0, 10)
+
+
+def settled(policy, lloyd, switch: int):
+    """The policy until step ``switch``, then ``lloyd`` (called at every step, so that its memory of the water
+    sensed runs from the release)."""
+
+    def act(env):
+        settling = lloyd(env)
+        return settling if env.t >= switch else policy(env)
+
+    return act
+
+
+@dataclasses.dataclass(frozen=True)
+class Episodes:
+    """One yardstick cell's episodes: its lake at the cell's density, its event and its horizon."""
+
+    params: object
+    lake: object
+    cell: object
+    lose: int
+    current: object
+    steps: int
+
+    def run(self, policy, sensors, every: bool = False):
+        """Mean final coverage of ``policy``; with ``every``, also its mean coverage at each tenth of the horizon
+        as a share of the final."""
+        p, c = self.params, self.params.coverage
+        env, _ = general_evaluation_env(p, self.lake, self.cell.n_agents, p.evaluate.episodes, sensors, self.current)
+        trace = rollout(env, policy, self.steps, p.evaluate.seed, StartsConfig(start=self.cell.start, lose=self.lose))
+        final = float(coverage.coverage_fraction(self.lake.polygon, trace["live"], c.radius, c.edges).mean())
+        if not every:
+            return final
+        at = [coverage.coverage_fraction(self.lake.polygon, trace["positions"][round(f * self.steps)], c.radius,
+                                         c.edges).mean() for f in TENTHS]
+        return final, [float(a) / final for a in at]
+
+
+def lake_rows(job: dict) -> list[dict]:
+    """Every yardstick cell of one lake (a job of ``map_jobs``)."""
+    torch.set_num_threads(1)
+    params = load_params(job["params"])
+    d = params.yardstick
+    params = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=d.episodes,
+                                                                      seed=d.seed))
+    region, drawn_for = yardstick_lakes(params)[job["lake"]]
+    rows = []
+    for cell in (c for c in yardstick_cells(params) if c.lake == job["lake"]):
+        lake = at_density(region, drawn_for, cell.n_agents)
+        lose, current = suite_event(params.general.suite, cell.event, cell.n_agents, water=lake.polygon)
+        steps = horizon(params.general, lake, params.world.region_area)
+        episodes = Episodes(params, lake, cell, lose, current, steps)
+        row = dataclasses.asdict(cell)
+        for seed in job["seeds"]:
+            module, meta = read_general_policy(BASELINE.format(seed))
+            rivals, _ = general_baselines(params, meta.get("baseline_gains"), False, False, True, False)
+            policy, sensors = fleet_policy(module), SensorsConfig(**meta["sensor_config"])
+            if "lloyd" not in row:
+                row["lloyd"], row["lloyd_rise"] = episodes.run(rivals["lloyd_tuned"], None, every=True)
+                row["decentralised"] = episodes.run(rivals["decentralised_lloyd"], None)
+            row[f"policy/{seed}"], row[f"policy_rise/{seed}"] = episodes.run(policy, sensors, every=True)
+            for share in job["shares"]:
+                switch = steps - round(share * steps)
+                row[f"settled_{share}/{seed}"] = episodes.run(
+                    settled(policy, rivals["decentralised_lloyd"], switch), sensors)
+        rows.append(row)
+    return rows
+
+
+def summary(rows: list[dict]) -> str:
+    """Each version's mean coverage / lloyd_tuned over the cells, in all and per event and start."""
+    versions = [k for k in rows[0] if k == "decentralised" or k.startswith(("policy/", "settled_"))]
+    lines = []
+    for group in ("all", "none", "lose", "current", "corner", "random"):
+        cells = [r for r in rows if group in ("all", r["event"], r["start"])]
+        lines.append(f"{group} ({len(cells)} cells): " + ", ".join(
+            f"{v} {statistics.mean(r[v] / r['lloyd'] for r in cells):.4f}" for v in versions))
+    still = [r for r in rows if r["event"] == "none"]
+    for name, key in (("tuned Lloyd", "lloyd_rise"), ("the policy", "policy_rise/")):
+        rise = np.mean([r[k] for r in still for k in r if k.startswith(key)], axis=0)
+        lines.append(f"{name}, still water: coverage at each tenth of the horizon / the final: "
+                     + " ".join(f"{x:.3f}" for x in rise))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("--seeds", default="1,2", help="the standing baseline's seeds, comma-separated")
+    ap.add_argument("--shares", default="0.2,0.35,0.5", help="the horizon's last shares Lloyd settles")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", type=Path, required=True, help="the JSON file of the rows")
+    ap.add_argument("--force", action="store_true", help="replace --out")
+    args = ap.parse_args(argv)
+    try:
+        seeds = [int(s) for s in args.seeds.split(",")]
+        shares = [float(s) for s in args.shares.split(",")]
+    except ValueError:
+        ap.error("--seeds and --shares are comma-separated numbers, e.g. --seeds 1,2 --shares 0.2,0.5")
+    if not all(0 < s < 1 for s in shares):
+        ap.error(f"--shares lie between 0 and 1, got {args.shares}")
+    params = load_params(args.params)
+    if not set(seeds) <= set(params.yardstick.seeds):
+        ap.error(f"--seeds are the standing baseline's (yardstick.seeds {list(params.yardstick.seeds)}), got {seeds}")
+    missing = [BASELINE.format(s) for s in seeds if not Path(BASELINE.format(s)).is_file()]
+    if missing:
+        print(f"error: {missing[0]} is missing; run `make repro` (stage train_yardstick) first", file=sys.stderr)
+        return 2
+    if args.out.exists() and not args.force:
+        print(f"error: {args.out} exists; choose another --out or pass --force", file=sys.stderr)
+        return 2
+    jobs = [{"params": args.params, "lake": lake, "seeds": seeds, "shares": shares} for lake in yardstick_lakes(params)]
+    rows = [row for rows in map_jobs(lake_rows, jobs, workers=args.workers, progress="lakes") for row in rows]
+    artifacts.atomic_write_text(args.out, json.dumps(rows, indent=1) + "\n")
+    print(summary(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
