@@ -364,3 +364,45 @@ def test_a_lloyd_prior_steers_toward_the_local_centroid_and_the_network_corrects
         torch.testing.assert_close(module(obs), agent.actor(obs)[0])
     with pytest.raises(ValueError, match="needs its columns"):
         SharedActor.of(OD, AD, cfg, observation_columns("local", SensorsConfig()))
+
+
+def test_a_lloyd_prior_added_at_deployment_steers_the_network_trained_without_it(tmp_path):
+    """``export_general(..., added_prior=g)`` (``replicate export RUN --lloyd-prior G``): the file's observation gains
+    the centroid sensor's columns, last; its action is tanh(μ(o[:, :K]) + g · (centroid_dx, centroid_dy)) with μ the
+    trained network on the K columns it was trained on; an actor with a prior of its own is refused, and so is
+    fine-tuning the file (its network never trained with the prior)."""
+    from replicate.core import artifacts
+    from replicate.core.schema import ConfigError, to_dict
+    from replicate.learn.policy import load_policy
+    from replicate.toolkit.cover import finetuned
+    from replicate.toolkit.export import export_general
+
+    def saved_actor(path, sensors, cfg):
+        columns = observation_columns("local", sensors)
+        agent = SharedMADDPG(len(columns), AD, cfg, seed=3, columns=columns, sensors=sensors)
+        artifacts.torch_save(path, {
+            "format": artifacts.CHECKPOINT_FORMAT, "actor": agent.actor.state_dict(), "observation": "local",
+            "sensors": to_dict(sensors), "columns": columns, "learner": to_dict(cfg), "hidden": 16,
+            "symmetry": "d4_frame", "selected_episode": 0, "seed": 3})
+        return agent.actor, columns
+
+    cfg = SharedLearnerConfig(hidden=16, embed=8, symmetry="d4_frame")
+    actor, trained_on = saved_actor(tmp_path / "actor.pt", SensorsConfig(), cfg)
+    meta = export_general(tmp_path / "actor.pt", tmp_path / "policy.pt", added_prior=3.0)
+    module, _ = load_policy(tmp_path / "policy.pt")
+    columns = meta["observation_layout"]
+    assert columns == trained_on + ["centroid_dx", "centroid_dy"] and meta["sensor_config"]["centroid"] is True
+    assert meta["lloyd_prior"] | {"gain_per_sim_m": 3.0, "added_at_deployment": True,
+                                  "network_reads": len(trained_on)} == meta["lloyd_prior"]
+    obs = torch.randn(2, 7, len(columns), generator=torch.Generator().manual_seed(4))
+    with torch.no_grad():
+        expected = torch.tanh(actor.net(obs[..., :len(trained_on)]) + 3.0 * obs[..., -2:])
+        torch.testing.assert_close(module(obs), expected)
+        torch.testing.assert_close(module(obs[0]), expected[0])
+    with pytest.raises(ConfigError, match="fine-tune the run's own export"):
+        finetuned(tmp_path / "policy.pt", module, meta, None, None, 10, 4, 0, tmp_path / "tuned", False)
+
+    saved_actor(tmp_path / "prior.pt", SensorsConfig(centroid=True), dataclasses.replace(cfg, lloyd_prior=10.0))
+    with pytest.raises(ConfigError, match="this one has its own prior"):
+        export_general(tmp_path / "prior.pt", tmp_path / "twice.pt", added_prior=3.0)
+    assert not (tmp_path / "twice.pt").exists()

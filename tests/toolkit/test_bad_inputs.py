@@ -110,6 +110,8 @@ def test_outline_files_with_nan_vertices_or_an_unknown_crs_are_named(capsys, tmp
     (["export", "general", "--baseline-gains", "actor.pt"], "--baseline-gains actor.pt: not the general baselines'"),
     (["export", "general", "--baseline-gains", "partial.json"],
      "--baseline-gains partial.json: not the general baselines' gains (lloyd_tuned.gains: missing key 'damping'"),
+    (["export", "general", "--lloyd-prior", "-1"], "--lloyd-prior is a gain per simulation metre, 0 or above"),
+    (["export", "run", "--lloyd-prior", "3"], "--baseline-gains and --lloyd-prior go with a general run"),
     (["tune", "general-baselines", "--set", "tuning.general_baselines.starts=0"],
      "tuning.general_baselines.starts must be at least 1"),
     (["tune", "general-baselines", "--set", "evaluate.geodesic.spacing=0"],

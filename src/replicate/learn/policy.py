@@ -49,17 +49,19 @@ class SwarmPolicy(nn.Module):
 class FleetPolicy(nn.Module):
     """a_i = tanh(μ(o_i)) for every buoy of a fleet of any size with the one shared actor: obs [N, obs_dim] or
     [batch, N, obs_dim] → actions, same shape with 2 in the last axis. With a Lloyd prior (``prior`` per m),
-    tanh(μ(o_i) + prior · o_i[centroid:centroid + 2]), the offset to the buoy's local centroid."""
+    tanh(μ(o_i) + prior · o_i[centroid:centroid + 2]), the offset to the buoy's local centroid. ``reads`` > 0: μ
+    reads the observation's first ``reads`` columns only (a network trained without the centroid's columns, to
+    which the prior was added at deployment, ``export.export_general``); 0: all of them."""
 
-    def __init__(self, net: nn.Sequential, prior: float = 0.0, centroid: int = 0):
+    def __init__(self, net: nn.Sequential, prior: float = 0.0, centroid: int = 0, reads: int = 0):
         super().__init__()
         self.net = net
         if prior and centroid < 1:
             raise ValueError("a Lloyd prior reads the centroid's columns: give their index (centroid_dx's)")
-        self.prior, self.centroid = float(prior), int(centroid)
+        self.prior, self.centroid, self.reads = float(prior), int(centroid), int(reads)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        pre = self.net(obs)
+        pre = self.net(obs[..., :self.reads] if self.reads > 0 else obs)
         if self.prior != 0.0:
             pre = pre + self.prior * obs[..., self.centroid:self.centroid + 2]
         return torch.tanh(pre)

@@ -130,6 +130,9 @@ def finetuned(policy: Path, module, meta: dict, params: Params, region, steps: i
     to ``out/policy.pt`` → the run's summary. Its Lloyd prior, if it has one, is the file's, not ``params``', and
     does not fade."""
 
+    if meta.get("lloyd_prior", {}).get("added_at_deployment"):
+        raise ConfigError(f"{policy}: its Lloyd prior was added at deployment to a network trained without it; "
+                          "fine-tune the run's own export (without --lloyd-prior), then add the prior again")
     gc, weights = params.general, dict(module.state_dict())
     try:
         symmetry = meta.get("symmetry", "none")  # a symmetric actor's MLP sits inside its average

@@ -7,6 +7,7 @@ package: the observation layout, the action meaning, and the map between simulat
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from pathlib import Path
 
@@ -14,7 +15,7 @@ import torch
 
 from replicate.core import artifacts
 from replicate.core.artifacts import CheckpointError
-from replicate.core.schema import to_dict
+from replicate.core.schema import ConfigError, to_dict
 from replicate.core.sections import SensorsConfig
 from replicate.learn.policy import FleetMessagePolicy, FleetPolicy, SwarmPolicy, save_policy, sensor_config
 from replicate.learn.shared_maddpg import SharedActor
@@ -59,11 +60,35 @@ def export_policy(actors_path: str | Path, region: Region, out: str | Path, sens
     return metadata
 
 
+def general_module(actor: SharedActor, sensors: SensorsConfig, columns: list[str], added_prior: float = 0.0):
+    """A general actor as the TorchScript module its file holds → (module, its sensors, its observation's
+    columns). ``added_prior`` g > 0 adds Lloyd's law at deployment to a network trained without it: a = tanh(μ(o) +
+    g · (c − p)), the observation with the centroid sensor's columns (last), which μ does not read."""
+    if added_prior and (actor.prior or actor.hops):
+        raise ConfigError("a Lloyd prior is added at deployment to an actor trained without one and without "
+                          "messages; this one has " + ("messages" if actor.hops else "its own prior") +
+                          ": export it without --lloyd-prior")
+    if added_prior:
+        sensors = dataclasses.replace(sensors, centroid=True)
+        full = observation_columns("local", sensors)
+        reads = 0 if full == columns else len(columns)  # an actor trained with the sensor reads it as before
+        assert full[:len(columns)] == columns, "the centroid sensor's columns come last (sensors.columns)"
+        policy = FleetPolicy(actor.net.eval(), added_prior, full.index("centroid_dx"), reads)
+        columns = full
+    elif actor.hops:
+        policy = FleetMessagePolicy(actor.net.eval())
+    else:
+        policy = FleetPolicy(actor.net.eval(), actor.prior, actor.centroid)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        return torch.jit.script(policy), sensors, columns
+
+
 def export_general(actor_path: str | Path, out: str | Path, sensitivity: float = 5.0,
-                   baseline_gains: dict | None = None) -> dict:
+                   baseline_gains: dict | None = None, added_prior: float = 0.0) -> dict:
     """Write a general policy (``general_train``'s ``actor.pt``) as TorchScript with its metadata, carrying
     ``baseline_gains`` (naive swarming's, Lloyd's and decentralised Lloyd's, tuned on its training worlds) when
-    given."""
+    given; with ``added_prior`` g, Lloyd's law added at deployment (``general_module``)."""
 
     saved = artifacts.torch_load(actor_path, "general policy")
     try:
@@ -73,15 +98,12 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
     except (KeyError, TypeError, RuntimeError, ValueError) as exc:
         raise CheckpointError(f"{actor_path}: not a complete general policy's actor ({type(exc).__name__}: {exc}); "
                               "train it again with `replicate train-general`") from None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        module = torch.jit.script(FleetMessagePolicy(actor.net.eval()) if actor.hops else
-                                  FleetPolicy(actor.net.eval(), actor.prior, actor.centroid))
+    module, sensors, columns = general_module(actor, sensors, saved["columns"], added_prior)
     metadata = {
         "format": "buoy-swarm-coverage general policy v1",
         "n_agents": "any",
         "observation": "local",
-        "observation_layout": saved["columns"],
+        "observation_layout": columns,
         "sensors": describe(sensors),
         "sensor_config": to_dict(sensors),
         "action": f"force direction in [-1, 1]^2 per buoy; force = {sensitivity} * action (simulation units)",
@@ -91,9 +113,12 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
     }
     if saved.get("symmetry", "none") != "none":  # an actor averaged over the compass's turns (``symmetry``)
         metadata["symmetry"] = saved["symmetry"]
-    if actor.prior:  # Lloyd's law toward the local centroid, which the network corrects
-        metadata["lloyd_prior"] = {"gain_per_sim_m": actor.prior, "columns": ["centroid_dx", "centroid_dy"],
+    if actor.prior or added_prior:  # Lloyd's law toward the local centroid, which the network corrects
+        metadata["lloyd_prior"] = {"gain_per_sim_m": actor.prior or added_prior,
+                                   "columns": ["centroid_dx", "centroid_dy"],
                                    "action": "tanh(network(obs) + gain_per_sim_m * (centroid_dx, centroid_dy))"}
+    if added_prior:
+        metadata["lloyd_prior"] |= {"added_at_deployment": True, "network_reads": len(saved["columns"])}
     if actor.hops:  # the buoys' positions beside their observations (``learn.messages``)
         metadata["messages"] = {
             "hops": actor.hops, "heard": f"the {sensors.neighbours} nearest buoys within {sensors.comm_range} m",

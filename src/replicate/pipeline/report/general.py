@@ -289,13 +289,14 @@ def share_table(params, cells: list[dict]) -> list[str]:
 
 
 def tried_section(records: dict[str, dict]) -> list[str]:
-    """The changes of the general training measured on the yardstick (``replicate compare`` records, by name),
-    each with its gain over the standing baseline, the rule's bar (0, or a loss a change made for speed may cost)
-    and its verdict."""
+    """The changes of the general training or its deployed policy measured on the yardstick (``replicate compare``
+    records, by name), each with its gain over the standing baseline, the rule's bar (0, or a loss a change made for
+    speed may cost) and its verdict."""
     if not records:
         return []
-    lines = ["Changes of the general training measured on the yardstick lakes (`replicate compare`: tuning seeds, "
-             "the seed as the unit, the rule written before the seeds trained; the records in "
+    lines = ["Changes of the general training or of its deployed policy measured on the yardstick lakes "
+             "(`replicate compare`: tuning seeds, the seed as the unit, the rule written before the seeds were "
+             "trained or run; the records in "
              "`docs/comparisons/`, the reading in `docs/GENERAL.md`, which says whether `params.yaml` adopted it; "
              "a candidate whose first seeds collapsed is there, with no record):", "",
              "| change (record) | seeds a side | Δ coverage / lloyd_tuned [95 % interval over seeds] | "

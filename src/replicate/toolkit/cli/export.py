@@ -26,6 +26,9 @@ def add(sub, verb: dict, regions: str) -> None:
     x.add_argument("--baseline-gains", default=None, metavar="FILE",
                    help="a general run: carry these baseline gains (`replicate tune general-baselines`) in the "
                         "policy, for `evaluate --policy` to compare with")
+    x.add_argument("--lloyd-prior", type=float, default=0.0, metavar="G",
+                   help="a general run trained without a Lloyd prior: add Lloyd's law toward the local centroid at "
+                        "deployment: a = tanh(network + G x the offset), G per simulation metre (0: none)")
     d = x.add_argument_group("an exported general policy, for one deployment (instead of a run)")
     d.add_argument("--policy", default=None, metavar="FILE", help="a general policy file to re-export with its "
                    "control contract in SI (control period, units of every input, the action's velocity)")
@@ -49,14 +52,18 @@ def run(args: argparse.Namespace) -> int:
     if (Path(args.run) / "actor.pt").exists():  # a general run: one shared actor for any fleet and lake
         if args.region is not None:
             raise ConfigError(f"{args.run}: a general run has no region of its own; export it without --region")
+        if not args.lloyd_prior >= 0:
+            raise ConfigError(f"--lloyd-prior is a gain per simulation metre, 0 or above: got {args.lloyd_prior}")
         gains = read_baseline_gains(args.baseline_gains)
         out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force, held=args.held)
-        export_general(Path(args.run) / "actor.pt", out, params.world.sensitivity, gains)
+        export_general(Path(args.run) / "actor.pt", out, params.world.sensitivity, gains, args.lloyd_prior)
         print(f"exported the general policy (any fleet, local sensors) to {out}"
-              + (f", with the baselines' gains of {args.baseline_gains}" if gains else ""))
+              + (f", with the baselines' gains of {args.baseline_gains}" if gains else "")
+              + (f", with Lloyd's law added at a gain of {args.lloyd_prior:g}" if args.lloyd_prior else ""))
         return 0
-    if args.baseline_gains is not None:
-        raise ConfigError("--baseline-gains goes with a general run; a per-region run has its own baselines")
+    if args.baseline_gains is not None or args.lloyd_prior:
+        raise ConfigError("--baseline-gains and --lloyd-prior go with a general run; a per-region run has its own "
+                          "baselines and no prior")
     region = run_region(args.run, params, args.region)
     out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force, held=args.held)
     meta = export_policy(Path(args.run) / "actors.pt", region, out, params.world.sensitivity)

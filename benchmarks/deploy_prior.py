@@ -1,0 +1,166 @@
+"""Lloyd's law added at deployment to the network the standing baseline trained without it, on the yardstick lakes
+and on the 50-buoy channel: how much each gain moves them, before a gain is put to `replicate compare`.
+
+    python benchmarks/deploy_prior.py --seeds 1,2 --gains 0,3,10 --out FILE [--workers 2]
+        every yardstick cell (the episodes of `replicate compare`) for the standing baseline's seeds
+        (yardstick/runs/general-sS/actor.pt), each with a = tanh(network(o) + g * (c - p)) at every gain g (0: the
+        baseline itself), c - p the local centroid's offset (`sensors.centroid`), which the network does not read;
+        tuned Lloyd the unit. Prints each gain's mean coverage / lloyd_tuned per seed, in all and per event and start.
+    python benchmarks/deploy_prior.py --channel --seeds 1,2 --gains 0,10 [--front] --out FILE
+        the rectangle at 1 m² per buoy with 50 buoys from the corner (4 episodes, as benchmarks/channel.py --trace);
+        --front: the prior only where no buoy heard lies ahead along c - p, (p_j - p_i) . (c - p) > 0.
+
+Run from the repository root with the project's environment (`make setup`)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import statistics
+import sys
+from pathlib import Path
+
+import torch
+
+from replicate.compare.evaluate import read_general_policy, rollout
+from replicate.compare.rivals import general_baselines
+from replicate.compare.suite import suite_event
+from replicate.compare.yardstick import yardstick_cells, yardstick_lakes
+from replicate.core import artifacts
+from replicate.core.executor import map_jobs
+from replicate.core.params import load_params
+from replicate.core.sections import SensorsConfig
+from replicate.core.studies import StartsConfig
+from replicate.learn.shared_maddpg import SharedActor
+from replicate.world import coverage
+from replicate.world.env import observation_columns
+from replicate.world.regions import at_density, make_region
+from replicate.world.scenario import general_evaluation_env, horizon
+
+BASELINE = "yardstick/runs/general-s{}/"  # the standing baseline's seeds (train_yardstick)
+CHANNEL_BUOYS, CHANNEL_EPISODES = 50, 4
+
+
+def with_prior(seed: int, gain: float, front: bool):
+    """The standing baseline's seed ``seed`` with Lloyd's law added at ``gain`` → (policy of an environment, the
+    sensors it runs on: the seed's with the centroid sensor)."""
+    saved = artifacts.torch_load(BASELINE.format(seed) + "actor.pt", "general policy")
+    actor = SharedActor.from_checkpoint(saved).eval()
+    sensors = dataclasses.replace(SensorsConfig(**saved["sensors"]), centroid=True)
+    columns = observation_columns("local", sensors)
+    reads, c, k = len(saved["columns"]), columns.index("centroid_dx"), sensors.neighbours
+    others, heard = columns.index("neighbour0_dx"), columns.index("neighbour0_heard")
+
+    def policy(env):
+        obs = torch.as_tensor(env.observe(), dtype=torch.float32)
+        offset = obs[..., c:c + 2]
+        if front:  # 0 where a buoy heard lies ahead along the offset
+            rel = obs[..., others:others + 2 * k].unflatten(-1, (k, 2))
+            ahead = ((rel * offset.unsqueeze(-2)).sum(-1) > 0) & (obs[..., heard:heard + k] > 0)
+            offset = offset * (~ahead.any(-1)).unsqueeze(-1)
+        with torch.no_grad():
+            action = torch.tanh(actor.net(obs[..., :reads]) + gain * offset).numpy()
+        return action if env.alive is None else action * env.alive[..., None]
+
+    return policy, sensors
+
+
+def coverage_of(params, lake, n_agents: int, start: str, lose: int, current, policy, sensors) -> float:
+    """Mean final coverage of ``policy`` over the evaluation's episodes."""
+    env, _ = general_evaluation_env(params, lake, n_agents, params.evaluate.episodes, sensors, current)
+    steps = horizon(params.general, lake, params.world.region_area)
+    trace = rollout(env, policy, steps, params.evaluate.seed, StartsConfig(start=start, lose=lose))
+    c = params.coverage
+    return float(coverage.coverage_fraction(lake.polygon, trace["live"], c.radius, c.edges).mean())
+
+
+def lake_rows(job: dict) -> list[dict]:
+    """Every yardstick cell of one lake (a job of ``map_jobs``): tuned Lloyd and every seed at every gain."""
+    torch.set_num_threads(1)
+    params = load_params(job["params"])
+    d = params.yardstick
+    params = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=d.episodes,
+                                                                      seed=d.seed))
+    region, drawn_for = yardstick_lakes(params)[job["lake"]]
+    _, meta = read_general_policy(BASELINE.format(job["seeds"][0]) + "policy.pt")
+    lloyd = general_baselines(params, meta.get("baseline_gains"), False, False)[0]["lloyd_tuned"]
+    rows = []
+    for cell in (c for c in yardstick_cells(params) if c.lake == job["lake"]):
+        lake = at_density(region, drawn_for, cell.n_agents)
+        lose, current = suite_event(params.general.suite, cell.event, cell.n_agents, water=lake.polygon)
+        where = (params, lake, cell.n_agents, cell.start, lose, current)
+        row = dataclasses.asdict(cell) | {"lloyd": coverage_of(*where, lloyd, None)}
+        for seed in job["seeds"]:
+            for gain in job["gains"]:
+                row[f"g{gain:g}/{seed}"] = coverage_of(*where, *with_prior(seed, gain, job["front"]))
+        rows.append(row)
+    return rows
+
+
+def channel_rows(params, seeds: list[int], gains: list[float], front: bool) -> list[dict]:
+    """The 50-buoy channel from the corner, still water: every seed at every gain."""
+    torch.set_num_threads(1)
+    params = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=CHANNEL_EPISODES))
+    region = make_region("rectangle", params.regions["rectangle"], params.world.region_area)
+    lake = at_density(region, params.world.n_agents, CHANNEL_BUOYS)
+    return [{"seed": seed, "gain": gain, "front": front,
+             "coverage": coverage_of(params, lake, CHANNEL_BUOYS, "corner", 0, None, *with_prior(seed, gain, front))}
+            for seed in seeds for gain in gains]
+
+
+def summary(rows: list[dict]) -> str:
+    """Each gain's mean coverage / lloyd_tuned per seed, in all and per event and start."""
+    keys = [k for k in rows[0] if k.startswith("g")]
+    lines = []
+    for group in ("all", "none", "lose", "current", "corner", "random"):
+        cells = [r for r in rows if group in ("all", r["event"], r["start"])]
+        lines.append(f"{group} ({len(cells)} cells): " + ", ".join(
+            f"{k} {statistics.mean(r[k] / r['lloyd'] for r in cells):.4f}" for k in keys))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("--seeds", default="1,2", help="the standing baseline's seeds, comma-separated")
+    ap.add_argument("--gains", default="0,3,10", help="the prior's gains per simulation metre, comma-separated")
+    ap.add_argument("--channel", action="store_true", help="the 50-buoy channel instead of the yardstick")
+    ap.add_argument("--front", action="store_true", help="the prior only where no buoy heard lies ahead")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", type=Path, required=True, help="the JSON file of the rows")
+    ap.add_argument("--force", action="store_true", help="replace --out")
+    args = ap.parse_args(argv)
+    try:
+        seeds = [int(s) for s in args.seeds.split(",")]
+        gains = [float(g) for g in args.gains.split(",")]
+    except ValueError:
+        ap.error("--seeds and --gains are comma-separated numbers, e.g. --seeds 1,2 --gains 0,3,10")
+    if min(gains) < 0:
+        ap.error(f"--gains are 0 or above, got {args.gains}")
+    params = load_params(args.params)
+    if not set(seeds) <= set(params.yardstick.seeds):
+        ap.error(f"--seeds are the standing baseline's (yardstick.seeds {list(params.yardstick.seeds)}), got {seeds}")
+    missing = [BASELINE.format(s) for s in seeds if not Path(BASELINE.format(s), "actor.pt").is_file()]
+    if missing:
+        print(f"error: {missing[0]}actor.pt is missing; run `make repro` (stage train_yardstick) first",
+              file=sys.stderr)
+        return 2
+    if args.out.exists() and not args.force:
+        print(f"error: {args.out} exists; choose another --out or pass --force", file=sys.stderr)
+        return 2
+    if args.channel:
+        rows = channel_rows(params, seeds, gains, args.front)
+        text = "\n".join(f"seed {r['seed']}, g {r['gain']:g}: {r['coverage']:.4f}" for r in rows)
+    else:
+        jobs = [{"params": args.params, "lake": lake, "seeds": seeds, "gains": gains, "front": args.front}
+                for lake in yardstick_lakes(params)]
+        rows = [row for rows in map_jobs(lake_rows, jobs, workers=args.workers, progress="lakes") for row in rows]
+        text = summary(rows)
+    artifacts.atomic_write_text(args.out, json.dumps(rows, indent=1) + "\n")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
