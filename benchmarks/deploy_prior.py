@@ -17,10 +17,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import statistics
 import sys
-from pathlib import Path
 
+import standing
 import torch
 
 from replicate.compare.evaluate import read_general_policy, rollout
@@ -38,14 +37,13 @@ from replicate.world.env import observation_columns
 from replicate.world.regions import at_density, make_region
 from replicate.world.scenario import general_evaluation_env, horizon
 
-BASELINE = "yardstick/runs/general-s{}/"  # the standing baseline's seeds (train_yardstick)
 CHANNEL_BUOYS, CHANNEL_EPISODES = 50, 4
 
 
 def with_prior(seed: int, gain: float, front: bool):
     """The standing baseline's seed ``seed`` with Lloyd's law added at ``gain`` → (policy of an environment, the
     sensors it runs on: the seed's with the centroid sensor)."""
-    saved = artifacts.torch_load(BASELINE.format(seed) + "actor.pt", "general policy")
+    saved = artifacts.torch_load(standing.FOLDER.format(seed) + "actor.pt", "general policy")
     actor = SharedActor.from_checkpoint(saved).eval()
     sensors = dataclasses.replace(SensorsConfig(**saved["sensors"]), centroid=True)
     columns = observation_columns("local", sensors)
@@ -83,7 +81,7 @@ def lake_rows(job: dict) -> list[dict]:
     params = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=d.episodes,
                                                                       seed=d.seed))
     region, drawn_for = yardstick_lakes(params)[job["lake"]]
-    _, meta = read_general_policy(BASELINE.format(job["seeds"][0]) + "policy.pt")
+    _, meta = read_general_policy(standing.FOLDER.format(job["seeds"][0]) + "policy.pt")
     lloyd = general_baselines(params, meta.get("baseline_gains"), False, False)[0]["lloyd_tuned"]
     rows = []
     for cell in (c for c in yardstick_cells(params) if c.lake == job["lake"]):
@@ -109,45 +107,18 @@ def channel_rows(params, seeds: list[int], gains: list[float], front: bool) -> l
             for seed in seeds for gain in gains]
 
 
-def summary(rows: list[dict]) -> str:
-    """Each gain's mean coverage / lloyd_tuned per seed, in all and per event and start."""
-    keys = [k for k in rows[0] if k.startswith("g")]
-    lines = []
-    for group in ("all", "none", "lose", "current", "corner", "random"):
-        cells = [r for r in rows if group in ("all", r["event"], r["start"])]
-        lines.append(f"{group} ({len(cells)} cells): " + ", ".join(
-            f"{k} {statistics.mean(r[k] / r['lloyd'] for r in cells):.4f}" for k in keys))
-    return "\n".join(lines)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--params", default="params.yaml")
-    ap.add_argument("--seeds", default="1,2", help="the standing baseline's seeds, comma-separated")
+    standing.add_options(ap)
     ap.add_argument("--gains", default="0,3,10", help="the prior's gains per simulation metre, comma-separated")
     ap.add_argument("--channel", action="store_true", help="the 50-buoy channel instead of the yardstick")
     ap.add_argument("--front", action="store_true", help="the prior only where no buoy heard lies ahead")
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", type=Path, required=True, help="the JSON file of the rows")
-    ap.add_argument("--force", action="store_true", help="replace --out")
     args = ap.parse_args(argv)
-    try:
-        seeds = [int(s) for s in args.seeds.split(",")]
-        gains = [float(g) for g in args.gains.split(",")]
-    except ValueError:
-        ap.error("--seeds and --gains are comma-separated numbers, e.g. --seeds 1,2 --gains 0,3,10")
+    seeds, gains = standing.numbers(ap, "--seeds", args.seeds, int), standing.numbers(ap, "--gains", args.gains)
     if min(gains) < 0:
         ap.error(f"--gains are 0 or above, got {args.gains}")
     params = load_params(args.params)
-    if not set(seeds) <= set(params.yardstick.seeds):
-        ap.error(f"--seeds are the standing baseline's (yardstick.seeds {list(params.yardstick.seeds)}), got {seeds}")
-    missing = [BASELINE.format(s) for s in seeds if not Path(BASELINE.format(s), "actor.pt").is_file()]
-    if missing:
-        print(f"error: {missing[0]}actor.pt is missing; run `make repro` (stage train_yardstick) first",
-              file=sys.stderr)
-        return 2
-    if args.out.exists() and not args.force:
-        print(f"error: {args.out} exists; choose another --out or pass --force", file=sys.stderr)
+    if standing.refused(ap, args, params, seeds):
         return 2
     if args.channel:
         rows = channel_rows(params, seeds, gains, args.front)
@@ -156,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         jobs = [{"params": args.params, "lake": lake, "seeds": seeds, "gains": gains, "front": args.front}
                 for lake in yardstick_lakes(params)]
         rows = [row for rows in map_jobs(lake_rows, jobs, workers=args.workers, progress="lakes") for row in rows]
-        text = summary(rows)
+        text = "\n".join(standing.by_group(rows, [k for k in rows[0] if k.startswith("g")]))
     artifacts.atomic_write_text(args.out, json.dumps(rows, indent=1) + "\n")
     print(text)
     return 0

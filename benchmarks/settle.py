@@ -15,11 +15,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import statistics
 import sys
-from pathlib import Path
 
 import numpy as np
+import standing
 import torch
 
 from replicate.compare.evaluate import fleet_policy, read_general_policy, rollout
@@ -35,7 +34,6 @@ from replicate.world import coverage
 from replicate.world.regions import at_density
 from replicate.world.scenario import general_evaluation_env, horizon
 
-BASELINE = "yardstick/runs/general-s{}/policy.pt"  # the standing baseline's seeds (train_yardstick)
 TENTHS = np.linspace(0.1, 1.0, 10)
 
 
@@ -91,7 +89,7 @@ def lake_rows(job: dict) -> list[dict]:
         episodes = Episodes(params, lake, cell, lose, current, steps)
         row = dataclasses.asdict(cell)
         for seed in job["seeds"]:
-            module, meta = read_general_policy(BASELINE.format(seed))
+            module, meta = read_general_policy(standing.FOLDER.format(seed) + "policy.pt")
             rivals, _ = general_baselines(params, meta.get("baseline_gains"), False, False, True, False)
             policy, sensors = fleet_policy(module), SensorsConfig(**meta["sensor_config"])
             if "lloyd" not in row:
@@ -107,13 +105,9 @@ def lake_rows(job: dict) -> list[dict]:
 
 
 def summary(rows: list[dict]) -> str:
-    """Each version's mean coverage / lloyd_tuned over the cells, in all and per event and start."""
+    """Each version's mean coverage / lloyd_tuned per event and start; the rise of coverage over the horizon."""
     versions = [k for k in rows[0] if k == "decentralised" or k.startswith(("policy/", "settled_"))]
-    lines = []
-    for group in ("all", "none", "lose", "current", "corner", "random"):
-        cells = [r for r in rows if group in ("all", r["event"], r["start"])]
-        lines.append(f"{group} ({len(cells)} cells): " + ", ".join(
-            f"{v} {statistics.mean(r[v] / r['lloyd'] for r in cells):.4f}" for v in versions))
+    lines = standing.by_group(rows, versions)
     still = [r for r in rows if r["event"] == "none"]
     for name, key in (("tuned Lloyd", "lloyd_rise"), ("the policy", "policy_rise/")):
         rise = np.mean([r[k] for r in still for k in r if k.startswith(key)], axis=0)
@@ -124,29 +118,14 @@ def summary(rows: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--params", default="params.yaml")
-    ap.add_argument("--seeds", default="1,2", help="the standing baseline's seeds, comma-separated")
+    standing.add_options(ap)
     ap.add_argument("--shares", default="0.2,0.35,0.5", help="the horizon's last shares Lloyd settles")
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", type=Path, required=True, help="the JSON file of the rows")
-    ap.add_argument("--force", action="store_true", help="replace --out")
     args = ap.parse_args(argv)
-    try:
-        seeds = [int(s) for s in args.seeds.split(",")]
-        shares = [float(s) for s in args.shares.split(",")]
-    except ValueError:
-        ap.error("--seeds and --shares are comma-separated numbers, e.g. --seeds 1,2 --shares 0.2,0.5")
+    seeds, shares = standing.numbers(ap, "--seeds", args.seeds, int), standing.numbers(ap, "--shares", args.shares)
     if not all(0 < s < 1 for s in shares):
         ap.error(f"--shares lie between 0 and 1, got {args.shares}")
     params = load_params(args.params)
-    if not set(seeds) <= set(params.yardstick.seeds):
-        ap.error(f"--seeds are the standing baseline's (yardstick.seeds {list(params.yardstick.seeds)}), got {seeds}")
-    missing = [BASELINE.format(s) for s in seeds if not Path(BASELINE.format(s)).is_file()]
-    if missing:
-        print(f"error: {missing[0]} is missing; run `make repro` (stage train_yardstick) first", file=sys.stderr)
-        return 2
-    if args.out.exists() and not args.force:
-        print(f"error: {args.out} exists; choose another --out or pass --force", file=sys.stderr)
+    if standing.refused(ap, args, params, seeds):
         return 2
     jobs = [{"params": args.params, "lake": lake, "seeds": seeds, "shares": shares} for lake in yardstick_lakes(params)]
     rows = [row for rows in map_jobs(lake_rows, jobs, workers=args.workers, progress="lakes") for row in rows]
