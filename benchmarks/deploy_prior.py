@@ -6,7 +6,7 @@ and on the 50-buoy channel: how much each gain moves them, before a gain is put 
         (yardstick/runs/general-sS/actor.pt), each with a = tanh(network(o) + g * (c - p)) at every gain g (0: the
         baseline itself), c - p the local centroid's offset (`sensors.centroid`), which the network does not read;
         tuned Lloyd the unit. Prints each gain's mean coverage / lloyd_tuned per seed, in all and per event and start.
-    python benchmarks/deploy_prior.py --channel --seeds 1,2 --gains 0,10 [--front] --out FILE
+    python benchmarks/deploy_prior.py --channel --seeds 1,2 --gains 0,3,10 [--front] --out FILE
         the rectangle at 1 m² per buoy with 50 buoys from the corner (4 episodes, as benchmarks/channel.py --trace);
         --front: the prior only where no buoy heard lies ahead along c - p, (p_j - p_i) . (c - p) > 0.
 
@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 
 import standing
@@ -115,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--front", action="store_true", help="the prior only where no buoy heard lies ahead")
     args = ap.parse_args(argv)
     seeds, gains = standing.numbers(ap, "--seeds", args.seeds, int), standing.numbers(ap, "--gains", args.gains)
-    if min(gains) < 0:
+    if not all(math.isfinite(g) and g >= 0 for g in gains):
         ap.error(f"--gains are 0 or above, got {args.gains}")
     params = load_params(args.params)
     if standing.refused(ap, args, params, seeds):

@@ -32,13 +32,13 @@ def numbers(ap: argparse.ArgumentParser, option: str, text: str, kind=float) -> 
 
 def refused(ap: argparse.ArgumentParser, args: argparse.Namespace, params, seeds: list[int]) -> bool:
     """Whether the seeds' files or --out stop the run (said on stderr, exit 2); seeds that are not the standing
-    baseline's are an usage error."""
+    baseline's are a usage error."""
     if not set(seeds) <= set(params.yardstick.seeds):
         ap.error(f"--seeds are the standing baseline's (yardstick.seeds {list(params.yardstick.seeds)}), got {seeds}")
-    missing = [FOLDER.format(s) for s in seeds if not Path(FOLDER.format(s), "actor.pt").is_file()]
+    missing = [FOLDER.format(s) + f for s in seeds for f in ("actor.pt", "policy.pt")
+               if not Path(FOLDER.format(s), f).is_file()]
     if missing:
-        print(f"error: {missing[0]}actor.pt is missing; run `make repro` (stage train_yardstick) first",
-              file=sys.stderr)
+        print(f"error: {missing[0]} is missing; run `make repro` (stage train_yardstick) first", file=sys.stderr)
     elif args.out.exists() and not args.force:
         print(f"error: {args.out} exists; choose another --out or pass --force", file=sys.stderr)
     return bool(missing) or (args.out.exists() and not args.force)

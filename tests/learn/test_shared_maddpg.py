@@ -394,6 +394,7 @@ def test_a_lloyd_prior_added_at_deployment_steers_the_network_trained_without_it
     assert columns == trained_on + ["centroid_dx", "centroid_dy"] and meta["sensor_config"]["centroid"] is True
     assert meta["lloyd_prior"] | {"gain_per_sim_m": 3.0, "added_at_deployment": True,
                                   "network_reads": len(trained_on)} == meta["lloyd_prior"]
+    assert f"network(obs[..., :{len(trained_on)}])" in meta["lloyd_prior"]["action"]
     obs = torch.randn(2, 7, len(columns), generator=torch.Generator().manual_seed(4))
     with torch.no_grad():
         expected = torch.tanh(actor.net(obs[..., :len(trained_on)]) + 3.0 * obs[..., -2:])
@@ -403,6 +404,6 @@ def test_a_lloyd_prior_added_at_deployment_steers_the_network_trained_without_it
         finetuned(tmp_path / "policy.pt", module, meta, None, None, 10, 4, 0, tmp_path / "tuned", False)
 
     saved_actor(tmp_path / "prior.pt", SensorsConfig(centroid=True), dataclasses.replace(cfg, lloyd_prior=10.0))
-    with pytest.raises(ConfigError, match="this one has its own prior"):
+    with pytest.raises(ConfigError, match="prior.pt: a Lloyd prior is added .* this one has its own prior"):
         export_general(tmp_path / "prior.pt", tmp_path / "twice.pt", added_prior=3.0)
     assert not (tmp_path / "twice.pt").exists()

@@ -72,7 +72,8 @@ def general_module(actor: SharedActor, sensors: SensorsConfig, columns: list[str
         sensors = dataclasses.replace(sensors, centroid=True)
         full = observation_columns("local", sensors)
         reads = 0 if full == columns else len(columns)  # an actor trained with the sensor reads it as before
-        assert full[:len(columns)] == columns, "the centroid sensor's columns come last (sensors.columns)"
+        if full[:len(columns)] != columns:  # the centroid sensor's columns come last (``sensors.columns``)
+            raise CheckpointError("its observation's columns are not the sensors' own: export it without --lloyd-prior")
         policy = FleetPolicy(actor.net.eval(), added_prior, full.index("centroid_dx"), reads)
         columns = full
     elif actor.hops:
@@ -98,7 +99,10 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
     except (KeyError, TypeError, RuntimeError, ValueError) as exc:
         raise CheckpointError(f"{actor_path}: not a complete general policy's actor ({type(exc).__name__}: {exc}); "
                               "train it again with `replicate train-general`") from None
-    module, sensors, columns = general_module(actor, sensors, saved["columns"], added_prior)
+    try:
+        module, sensors, columns = general_module(actor, sensors, saved["columns"], added_prior)
+    except (ConfigError, CheckpointError) as exc:
+        raise type(exc)(f"{actor_path}: {exc}") from None
     metadata = {
         "format": "buoy-swarm-coverage general policy v1",
         "n_agents": "any",
@@ -118,7 +122,9 @@ def export_general(actor_path: str | Path, out: str | Path, sensitivity: float =
                                    "columns": ["centroid_dx", "centroid_dy"],
                                    "action": "tanh(network(obs) + gain_per_sim_m * (centroid_dx, centroid_dy))"}
     if added_prior:
-        metadata["lloyd_prior"] |= {"added_at_deployment": True, "network_reads": len(saved["columns"])}
+        reads = len(saved["columns"])  # the network's columns, the first of the file's
+        metadata["lloyd_prior"] |= {"added_at_deployment": True, "network_reads": reads, "action": f"tanh(network("
+                                    f"obs[..., :{reads}]) + gain_per_sim_m * (centroid_dx, centroid_dy))"}
     if actor.hops:  # the buoys' positions beside their observations (``learn.messages``)
         metadata["messages"] = {
             "hops": actor.hops, "heard": f"the {sensors.neighbours} nearest buoys within {sensors.comm_range} m",

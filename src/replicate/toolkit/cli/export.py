@@ -4,6 +4,7 @@ again, with its control contract for one deployment's SI scale (``--policy FILE 
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from replicate.core.params import load_params
@@ -52,8 +53,10 @@ def run(args: argparse.Namespace) -> int:
     if (Path(args.run) / "actor.pt").exists():  # a general run: one shared actor for any fleet and lake
         if args.region is not None:
             raise ConfigError(f"{args.run}: a general run has no region of its own; export it without --region")
-        if not args.lloyd_prior >= 0:
+        if not (math.isfinite(args.lloyd_prior) and args.lloyd_prior >= 0):
             raise ConfigError(f"--lloyd-prior is a gain per simulation metre, 0 or above: got {args.lloyd_prior}")
+        if args.lloyd_prior and args.out is None:
+            raise ConfigError("--lloyd-prior writes another policy than the run's own RUN/policy.pt: give --out FILE")
         gains = read_baseline_gains(args.baseline_gains)
         out = claim_out_file(Path(args.out or Path(args.run) / "policy.pt"), args.force, held=args.held)
         export_general(Path(args.run) / "actor.pt", out, params.world.sensitivity, gains, args.lloyd_prior)
@@ -76,9 +79,9 @@ def export_deployment(args: argparse.Namespace, params) -> int:
     from replicate.toolkit.deploy import export_for
     from replicate.world.units import Units
 
-    if args.run is not None or args.region is not None or args.baseline_gains is not None:
-        raise ConfigError("--policy re-exports an exported general policy; give no run folder, --region or "
-                          "--baseline-gains with it")
+    if args.run is not None or args.region is not None or args.baseline_gains is not None or args.lloyd_prior:
+        raise ConfigError("--policy re-exports an exported general policy; give no run folder, --region, "
+                          "--baseline-gains or --lloyd-prior with it")
     if args.onnx is not None:
         try:
             import onnx  # noqa: F401 - the extra this option needs
