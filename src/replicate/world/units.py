@@ -178,8 +178,8 @@ def contract(world: WorldConfig, coverage: CoverageConfig, sensors: SensorsConfi
                    "capped at shore_range (no shore within reach reads shore_range)"
         elif c.startswith("centroid_"):
             text = "offset to the centroid of the water within shore_range nearer to the buoy than to the " \
-                   "neighbours it lists (east, north; 0 with none in reach): computed on board from a chart " \
-                   "of the lake's outline"
+                   "neighbours it lists (east, north; 0 for a buoy out of service): computed on board from a " \
+                   "chart of the lake's outline"
         elif unit == LENGTH:
             text = "a neighbour's position relative to the buoy (east, north)"
         else:
