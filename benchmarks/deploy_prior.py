@@ -23,20 +23,16 @@ import sys
 import standing
 import torch
 
-from replicate.compare.evaluate import read_general_policy, rollout
+from replicate.compare.evaluate import read_general_policy
 from replicate.compare.rivals import general_baselines
-from replicate.compare.suite import suite_event
-from replicate.compare.yardstick import yardstick_cells, yardstick_lakes
+from replicate.compare.yardstick import yardstick_lakes
 from replicate.core import artifacts
 from replicate.core.executor import map_jobs
 from replicate.core.params import load_params
 from replicate.core.sections import SensorsConfig
-from replicate.core.studies import StartsConfig
 from replicate.learn.shared_maddpg import SharedActor
-from replicate.world import coverage
 from replicate.world.env import observation_columns
 from replicate.world.regions import at_density, make_region
-from replicate.world.scenario import general_evaluation_env, horizon
 
 CHANNEL_BUOYS, CHANNEL_EPISODES = 50, 4
 
@@ -65,35 +61,18 @@ def with_prior(seed: int, gain: float, front: bool):
     return policy, sensors
 
 
-def coverage_of(params, lake, n_agents: int, start: str, lose: int, current, policy, sensors) -> float:
-    """Mean final coverage of ``policy`` over the evaluation's episodes."""
-    env, _ = general_evaluation_env(params, lake, n_agents, params.evaluate.episodes, sensors, current)
-    steps = horizon(params.general, lake, params.world.region_area)
-    trace = rollout(env, policy, steps, params.evaluate.seed, StartsConfig(start=start, lose=lose))
-    c = params.coverage
-    return float(coverage.coverage_fraction(lake.polygon, trace["live"], c.radius, c.edges).mean())
-
-
 def lake_rows(job: dict) -> list[dict]:
     """Every yardstick cell of one lake (a job of ``map_jobs``): tuned Lloyd and every seed at every gain."""
     torch.set_num_threads(1)
-    params = load_params(job["params"])
-    d = params.yardstick
-    params = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=d.episodes,
-                                                                      seed=d.seed))
-    region, drawn_for = yardstick_lakes(params)[job["lake"]]
+    params, cells = standing.lake_cells(job["params"], job["lake"])
     _, meta = read_general_policy(standing.FOLDER.format(job["seeds"][0]) + "policy.pt")
     lloyd = general_baselines(params, meta.get("baseline_gains"), False, False)[0]["lloyd_tuned"]
+    versions = {f"g{gain:g}/{seed}": with_prior(seed, gain, job["front"])  # read once per lake
+                for seed in job["seeds"] for gain in job["gains"]}
     rows = []
-    for cell in (c for c in yardstick_cells(params) if c.lake == job["lake"]):
-        lake = at_density(region, drawn_for, cell.n_agents)
-        lose, current = suite_event(params.general.suite, cell.event, cell.n_agents, water=lake.polygon)
-        where = (params, lake, cell.n_agents, cell.start, lose, current)
-        row = dataclasses.asdict(cell) | {"lloyd": coverage_of(*where, lloyd, None)}
-        for seed in job["seeds"]:
-            for gain in job["gains"]:
-                row[f"g{gain:g}/{seed}"] = coverage_of(*where, *with_prior(seed, gain, job["front"]))
-        rows.append(row)
+    for cell, episodes in cells:
+        row = dataclasses.asdict(cell) | {"lloyd": episodes.run(lloyd, None)}
+        rows.append(row | {name: episodes.run(*version) for name, version in versions.items()})
     return rows
 
 
@@ -102,9 +81,9 @@ def channel_rows(params, seeds: list[int], gains: list[float], front: bool) -> l
     torch.set_num_threads(1)
     params = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=CHANNEL_EPISODES))
     region = make_region("rectangle", params.regions["rectangle"], params.world.region_area)
-    lake = at_density(region, params.world.n_agents, CHANNEL_BUOYS)
-    return [{"seed": seed, "gain": gain, "front": front,
-             "coverage": coverage_of(params, lake, CHANNEL_BUOYS, "corner", 0, None, *with_prior(seed, gain, front))}
+    episodes = standing.Episodes(params, at_density(region, params.world.n_agents, CHANNEL_BUOYS), CHANNEL_BUOYS,
+                                 "corner")
+    return [{"seed": seed, "gain": gain, "front": front, "coverage": episodes.run(*with_prior(seed, gain, front))}
             for seed in seeds for gain in gains]
 
 

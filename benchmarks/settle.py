@@ -21,18 +21,14 @@ import numpy as np
 import standing
 import torch
 
-from replicate.compare.evaluate import fleet_policy, read_general_policy, rollout
+from replicate.compare.evaluate import fleet_policy, read_general_policy
 from replicate.compare.rivals import general_baselines
-from replicate.compare.suite import suite_event
-from replicate.compare.yardstick import yardstick_cells, yardstick_lakes
+from replicate.compare.yardstick import yardstick_lakes
 from replicate.core import artifacts
 from replicate.core.executor import map_jobs
 from replicate.core.params import load_params
 from replicate.core.sections import SensorsConfig
-from replicate.core.studies import StartsConfig
-from replicate.world import coverage
-from replicate.world.regions import at_density
-from replicate.world.scenario import general_evaluation_env, horizon
+from replicate.world.scenario import horizon
 
 TENTHS = np.linspace(0.1, 1.0, 10)
 
@@ -48,50 +44,20 @@ def settled(policy, lloyd, switch: int):
     return act
 
 
-@dataclasses.dataclass(frozen=True)
-class Episodes:
-    """One yardstick cell's episodes: its lake at the cell's density, its event and its horizon."""
-
-    params: object
-    lake: object
-    cell: object
-    lose: int
-    current: object
-    steps: int
-
-    def run(self, policy, sensors, every: bool = False):
-        """Mean final coverage of ``policy``; with ``every``, also its mean coverage at each tenth of the horizon
-        as a share of the final."""
-        p, c = self.params, self.params.coverage
-        env, _ = general_evaluation_env(p, self.lake, self.cell.n_agents, p.evaluate.episodes, sensors, self.current)
-        trace = rollout(env, policy, self.steps, p.evaluate.seed, StartsConfig(start=self.cell.start, lose=self.lose))
-        final = float(coverage.coverage_fraction(self.lake.polygon, trace["live"], c.radius, c.edges).mean())
-        if not every:
-            return final
-        at = [coverage.coverage_fraction(self.lake.polygon, trace["positions"][round(f * self.steps)], c.radius,
-                                         c.edges).mean() for f in TENTHS]
-        return final, [float(a) / final for a in at]
-
-
 def lake_rows(job: dict) -> list[dict]:
     """Every yardstick cell of one lake (a job of ``map_jobs``)."""
     torch.set_num_threads(1)
-    params = load_params(job["params"])
-    d = params.yardstick
-    params = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=d.episodes,
-                                                                      seed=d.seed))
-    region, drawn_for = yardstick_lakes(params)[job["lake"]]
+    params, cells = standing.lake_cells(job["params"], job["lake"])
+    seeds = {}  # seed → (its policy, its sensors, the rivals with its gains): read once per lake
+    for seed in job["seeds"]:
+        module, meta = read_general_policy(standing.FOLDER.format(seed) + "policy.pt")
+        rivals, _ = general_baselines(params, meta.get("baseline_gains"), False, False, True, False)
+        seeds[seed] = fleet_policy(module), SensorsConfig(**meta["sensor_config"]), rivals
     rows = []
-    for cell in (c for c in yardstick_cells(params) if c.lake == job["lake"]):
-        lake = at_density(region, drawn_for, cell.n_agents)
-        lose, current = suite_event(params.general.suite, cell.event, cell.n_agents, water=lake.polygon)
-        steps = horizon(params.general, lake, params.world.region_area)
-        episodes = Episodes(params, lake, cell, lose, current, steps)
+    for cell, episodes in cells:
+        steps = horizon(params.general, episodes.lake, params.world.region_area)
         row = dataclasses.asdict(cell)
-        for seed in job["seeds"]:
-            module, meta = read_general_policy(standing.FOLDER.format(seed) + "policy.pt")
-            rivals, _ = general_baselines(params, meta.get("baseline_gains"), False, False, True, False)
-            policy, sensors = fleet_policy(module), SensorsConfig(**meta["sensor_config"])
+        for seed, (policy, sensors, rivals) in seeds.items():
             if "lloyd" not in row:
                 row["lloyd"], row["lloyd_rise"] = episodes.run(rivals["lloyd_tuned"], None, every=True)
                 row["decentralised"] = episodes.run(rivals["decentralised_lloyd"], None)

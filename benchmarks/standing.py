@@ -5,12 +5,71 @@ the summary of their rows per event and start."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+
+import numpy as np
+
+from replicate.compare.evaluate import rollout
+from replicate.compare.suite import suite_event
+from replicate.compare.yardstick import YardstickCell, yardstick_cells, yardstick_lakes
+from replicate.core.params import load_params
+from replicate.core.studies import StartsConfig
+from replicate.world import coverage
+from replicate.world.regions import at_density
+from replicate.world.scenario import general_evaluation_env, horizon
 
 FOLDER = "yardstick/runs/general-s{}/"  # the standing baseline's seed S: actor.pt, policy.pt
 GROUPS = ("all", "none", "lose", "current", "corner", "random")
+TENTHS = np.linspace(0.1, 1.0, 10)
+
+
+@dataclasses.dataclass(frozen=True)
+class Episodes:
+    """The evaluation's episodes of ``n_agents`` buoys on ``lake`` from ``start``, losing ``lose`` at T/2, in
+    ``current``, for the lake's horizon."""
+
+    params: object
+    lake: object
+    n_agents: int
+    start: str
+    lose: int = 0
+    current: object = None
+
+    def run(self, policy, sensors, every: bool = False):
+        """Mean final coverage of ``policy``; with ``every``, also its mean coverage at each tenth of the horizon
+        as a share of the final."""
+        p, c = self.params, self.params.coverage
+        steps = horizon(p.general, self.lake, p.world.region_area)
+        env, _ = general_evaluation_env(p, self.lake, self.n_agents, p.evaluate.episodes, sensors, self.current)
+        trace = rollout(env, policy, steps, p.evaluate.seed, StartsConfig(start=self.start, lose=self.lose))
+        final = float(coverage.coverage_fraction(self.lake.polygon, trace["live"], c.radius, c.edges).mean())
+        if not every:
+            return final
+        at = [coverage.coverage_fraction(self.lake.polygon, trace["positions"][round(f * steps)], c.radius,
+                                         c.edges).mean() for f in TENTHS]
+        return final, [float(a) / final for a in at]
+
+
+def lake_cells(params_path: str, name: str) -> tuple[object, Iterator[tuple[YardstickCell, Episodes]]]:
+    """The parameters as `replicate compare` reads them (its episodes and seed) and every yardstick cell of the lake
+    ``name`` with its episodes."""
+    params = load_params(params_path)
+    d = params.yardstick
+    params = dataclasses.replace(params, evaluate=dataclasses.replace(params.evaluate, episodes=d.episodes,
+                                                                      seed=d.seed))
+    region, drawn_for = yardstick_lakes(params)[name]
+
+    def cells():
+        for cell in (c for c in yardstick_cells(params) if c.lake == name):
+            lake = at_density(region, drawn_for, cell.n_agents)
+            lose, current = suite_event(params.general.suite, cell.event, cell.n_agents, water=lake.polygon)
+            yield cell, Episodes(params, lake, cell.n_agents, cell.start, lose, current)
+
+    return params, cells()
 
 
 def add_options(ap: argparse.ArgumentParser) -> None:
